@@ -1,0 +1,660 @@
+"""Validation of the long recording format and shared run-grouping helpers.
+
+Every estimator and transformer of the package validates its input through
+:func:`check_recordings`, so that a malformed recording fails early with a
+message that names the offending column, run and row, instead of failing deep
+inside numpy, pandas or torch. The grouping helpers (:func:`run_codes`,
+:func:`group_positions`, :func:`run_positions`) are the single place where rows
+are assigned to runs; the sequence converters in :mod:`skcath.sequences` build
+on them.
+
+All checks are vectorised (``pd.factorize`` for the ids, ``np.diff`` over rows
+sorted by run for the time axis): the cost is linear in the number of rows with
+no Python loop over rows on valid input.
+
+The format itself is described in ``docs/data_format.rst``; the column names
+live in :mod:`skcath._format`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+from pandas.api import types as pdt
+
+from ._format import (
+    CATHETER,
+    MOTION,
+    MOTOR_COLUMNS,
+    PHASE,
+    PHASES,
+    REFERENCE_COLUMNS,
+    REQUIRED_COLUMNS,
+    RUN,
+    SETTING,
+    SWEEP,
+    TARGET_NAMES,
+    TIME,
+    TORQUE_COLUMNS,
+)
+
+__all__ = [
+    "FINITE_COLUMNS",
+    "NUMERIC_COLUMNS",
+    "check_recordings",
+    "check_target",
+    "group_positions",
+    "run_codes",
+    "run_positions",
+]
+
+#: Numeric channels that must be finite on every row: time (s), motor angles
+#: (degrees) and drive torques.
+FINITE_COLUMNS = (TIME, *MOTOR_COLUMNS, *TORQUE_COLUMNS)
+#: All numeric channels of the format. The reference tip columns (mm) may be
+#: NaN (absent on motion rows, tracker dropouts on sweep rows) but never +-inf.
+NUMERIC_COLUMNS = (*FINITE_COLUMNS, *REFERENCE_COLUMNS)
+
+_DOCS = "docs/data_format.rst"
+# How many offending values or runs an error message lists before "... and N more".
+_MAX_LISTED = 10
+
+
+# ---------------------------------------------------------------------------
+# message helpers
+# ---------------------------------------------------------------------------
+def _list_items(items: Sequence, limit: int = _MAX_LISTED) -> str:
+    """Format ``items`` as a comma-separated list of reprs, truncated after ``limit``."""
+    items = list(items)
+    shown = ", ".join(repr(_plain(item)) for item in items[:limit])
+    if len(items) > limit:
+        shown += f", ... and {len(items) - limit} more"
+    return shown
+
+
+def _plain(value):
+    """Turn numpy scalars into plain Python objects so that reprs read naturally."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _where(X: pd.DataFrame, position: int) -> str:
+    """Describe row ``position`` of ``X`` by its run id and index label."""
+    label = _plain(X.index[position])
+    if RUN in X.columns and isinstance(X.columns.get_loc(RUN), int):
+        run = _plain(X[RUN].iloc[position])
+        return f"run {run!r}, row label {label!r} (position {position})"
+    return f"row label {label!r} (position {position})"
+
+
+# ---------------------------------------------------------------------------
+# frame-level checks
+# ---------------------------------------------------------------------------
+def _check_frame(X, caller: str = "check_recordings") -> None:
+    """Raise unless ``X`` is a non-empty DataFrame in the long format."""
+    if not isinstance(X, pd.DataFrame):
+        raise TypeError(
+            f"{caller} expects the long recording format: a pandas DataFrame with "
+            f"one row per time sample and the columns {list(REQUIRED_COLUMNS)}; "
+            f"got {type(X).__module__}.{type(X).__qualname__}. See {_DOCS}."
+        )
+    if len(X) == 0:
+        raise ValueError(
+            f"{caller} got an empty DataFrame (0 rows); at least one run with "
+            f"samples is required. See {_DOCS}."
+        )
+
+
+def _check_columns_present(X: pd.DataFrame, required: Iterable[str]) -> None:
+    """Raise if any required column is missing or appears more than once."""
+    required = list(dict.fromkeys(required))
+    missing = [c for c in required if c not in X.columns]
+    if missing:
+        raise ValueError(
+            f"The recordings are missing the column(s) {missing}. Expected columns: "
+            f"{required}; got {[_plain(c) for c in X.columns]}. See {_DOCS}."
+        )
+    duplicated = X.columns[X.columns.duplicated()]
+    clashing = [c for c in required if c in set(duplicated)]
+    if clashing:
+        raise ValueError(
+            f"The recordings contain the column(s) {clashing} more than once; "
+            "each column name must be unique."
+        )
+
+
+def _factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
+    """Integer codes (order of first appearance) and unique values of an id column.
+
+    Raises
+    ------
+    ValueError
+        If the column contains missing values or unhashable objects.
+    """
+    try:
+        codes, uniques = pd.factorize(X[column], sort=False, use_na_sentinel=True)
+    except TypeError as exc:
+        raise ValueError(
+            f"Column {column!r} must hold hashable ids (strings or integers); "
+            f"factorizing it failed: {exc}"
+        ) from None
+    codes = np.asarray(codes, dtype=np.intp)
+    missing = np.flatnonzero(codes < 0)
+    if missing.size:
+        first = int(missing[0])
+        raise ValueError(
+            f"Column {column!r} contains {missing.size} missing id(s) (NaN/None); "
+            f"first at row label {_plain(X.index[first])!r} (position {first}). "
+            "Every row needs a catheter, setting and run id."
+        )
+    return codes, np.asarray(uniques, dtype=object)
+
+
+def _column_as_float(X: pd.DataFrame, column: str) -> np.ndarray:
+    """Return column ``column`` of ``X`` as a float64 array (missing values as NaN).
+
+    Numeric dtypes (including nullable ``Int64``/``Float64``) are cast directly;
+    object, string and categorical columns are parsed with ``pd.to_numeric``.
+    The returned array may share memory with ``X`` and must not be modified.
+
+    Raises
+    ------
+    ValueError
+        If the column holds booleans, complex numbers, dates, or values that do
+        not convert to numbers; the message names the first offending run/row.
+    """
+    series = X[column]
+    dtype = series.dtype
+    unsupported = (
+        pdt.is_bool_dtype(dtype)
+        or pdt.is_complex_dtype(dtype)
+        or pdt.is_datetime64_any_dtype(dtype)
+        or pdt.is_timedelta64_dtype(dtype)
+        or isinstance(dtype, (pd.PeriodDtype, pd.IntervalDtype))
+    )
+    if unsupported:
+        raise ValueError(
+            f"Column {column!r} must hold real numbers (float or int), got dtype "
+            f"{dtype}. See {_DOCS} for the unit of each channel."
+        )
+    if pdt.is_numeric_dtype(dtype):
+        return series.to_numpy(dtype=np.float64, na_value=np.nan)
+
+    parsed = pd.to_numeric(series, errors="coerce")
+    if pdt.is_bool_dtype(parsed.dtype) or pdt.is_complex_dtype(parsed.dtype):
+        raise ValueError(
+            f"Column {column!r} must hold real numbers, got {parsed.dtype} values "
+            f"(dtype {dtype}). See {_DOCS}."
+        )
+    values = parsed.to_numpy(dtype=np.float64, na_value=np.nan)
+    bad = np.isnan(values) & ~series.isna().to_numpy(dtype=bool)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"Column {column!r} must be numeric, but {int(bad.sum())} value(s) do "
+            f"not convert to numbers; first {_plain(series.iloc[first])!r} at "
+            f"{_where(X, first)}."
+        )
+    return values
+
+
+def _check_finite(
+    X: pd.DataFrame, column: str, values: np.ndarray, *, allow_nan: bool
+) -> None:
+    """Raise if ``values`` contains +-inf (or NaN unless ``allow_nan``)."""
+    bad = np.isinf(values) if allow_nan else ~np.isfinite(values)
+    if not bad.any():
+        return
+    first = int(np.flatnonzero(bad)[0])
+    kind = "NaN" if np.isnan(values[first]) else repr(_plain(values[first]))
+    allowed = (
+        "NaN (tracker dropout) is allowed but +-inf is not"
+        if allow_nan
+        else "every value must be finite"
+    )
+    raise ValueError(
+        f"Column {column!r} contains {int(bad.sum())} non-finite value(s) "
+        f"({allowed}); first {kind} at "
+        f"{_where(X, first)}."
+    )
+
+
+def _check_run_ids_unique(
+    X: pd.DataFrame,
+    codes: np.ndarray,
+    runs: np.ndarray,
+    first_positions: np.ndarray,
+    column: str,
+) -> None:
+    """Raise if a run id appears with more than one value of ``column``."""
+    other_codes, other_values = _factorize_ids(X, column)
+    differs = other_codes != other_codes[first_positions[codes]]
+    if not differs.any():
+        return
+    bad_runs = np.unique(codes[differs])
+    run = int(bad_runs[0])
+    values = other_values[np.unique(other_codes[codes == run])]
+    noun = "catheters" if column == CATHETER else "settings"
+    raise ValueError(
+        f"Run id {_plain(runs[run])!r} is used for several {noun} "
+        f"({column!r} values {_list_items(values)}); a run id must belong to "
+        f"exactly one catheter and one setting. Runs affected: "
+        f"{_list_items(runs[bad_runs])}."
+    )
+
+
+def _phase_masks(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks of sweep and motion rows; raise on any other phase value."""
+    try:
+        codes, uniques = pd.factorize(X[PHASE], sort=False, use_na_sentinel=True)
+    except TypeError as exc:
+        raise ValueError(
+            f"Column {PHASE!r} must contain only {list(PHASES)}; factorizing it "
+            f"failed: {exc}"
+        ) from None
+    uniques = np.asarray(uniques, dtype=object)
+    bad = [value for value in uniques if value not in PHASES]
+    n_missing = int(np.count_nonzero(codes < 0))
+    if n_missing:
+        bad.append(None)
+    if bad:
+        raise ValueError(
+            f"Column {PHASE!r} must contain only {list(PHASES)}; found invalid "
+            f"value(s) {_list_items(bad)}"
+            + (f" ({n_missing} missing)" if n_missing else "")
+            + "."
+        )
+    is_sweep = np.zeros(len(uniques), dtype=bool)
+    is_sweep[[i for i, value in enumerate(uniques) if value == SWEEP]] = True
+    sweep = is_sweep[codes]
+    return sweep, ~sweep
+
+
+def _check_phase_order(
+    X: pd.DataFrame,
+    sweep: np.ndarray,
+    codes: np.ndarray,
+    runs: np.ndarray,
+    order: np.ndarray,
+    bounds: np.ndarray,
+    *,
+    require_sweep: bool,
+) -> None:
+    """Raise if a run has no sweep rows or a sweep row follows a motion row."""
+    if require_sweep:
+        n_sweep = np.bincount(codes[sweep], minlength=len(runs))
+        no_sweep = np.flatnonzero(n_sweep == 0)
+        if no_sweep.size:
+            raise ValueError(
+                f"Run(s) {_list_items(runs[no_sweep])} have no {SWEEP!r} rows; "
+                "every run must start with its calibration sweep (rows with "
+                f"{PHASE!r} == {SWEEP!r} and the reference tip {list(REFERENCE_COLUMNS)})."
+            )
+    sorted_sweep = sweep[order]
+    sorted_codes = codes[order]
+    late = sorted_sweep[1:] & ~sorted_sweep[:-1] & (sorted_codes[1:] == sorted_codes[:-1])
+    if late.any():
+        i = int(np.flatnonzero(late)[0])
+        prev, cur = int(order[i]), int(order[i + 1])
+        raise ValueError(
+            f"In run {_plain(runs[sorted_codes[i]])!r} a {SWEEP!r} row (row label "
+            f"{_plain(X.index[cur])!r}) follows a {MOTION!r} row (row label "
+            f"{_plain(X.index[prev])!r}); each run must start with its calibration "
+            f"sweep, followed by the {MOTION!r} rows."
+        )
+
+
+def _check_time_order(
+    X: pd.DataFrame,
+    t: np.ndarray,
+    codes: np.ndarray,
+    runs: np.ndarray,
+    order: np.ndarray,
+) -> None:
+    """Raise if time is not strictly increasing within a run, in row order."""
+    if order.size < 2:
+        return
+    sorted_t = t[order]
+    sorted_codes = codes[order]
+    same_run = sorted_codes[1:] == sorted_codes[:-1]
+    with np.errstate(invalid="ignore"):
+        not_increasing = same_run & ~(np.diff(sorted_t) > 0)
+    if not not_increasing.any():
+        return
+    hits = np.flatnonzero(not_increasing)
+    i = int(hits[0])
+    prev, cur = int(order[i]), int(order[i + 1])
+    n_runs_bad = np.unique(sorted_codes[hits]).size
+    raise ValueError(
+        f"Column {TIME!r} must be strictly increasing within each run (rows of a "
+        f"run in time order); run {_plain(runs[sorted_codes[i]])!r} goes from "
+        f"t={_plain(t[prev])!r} s at row label {_plain(X.index[prev])!r} to "
+        f"t={_plain(t[cur])!r} s at row label {_plain(X.index[cur])!r} "
+        f"({hits.size} such step(s) in {n_runs_bad} run(s))."
+    )
+
+
+# ---------------------------------------------------------------------------
+# grouping helpers
+# ---------------------------------------------------------------------------
+def run_codes(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Integer run code of every row and the run ids in order of first appearance.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format; only the ``run`` column is used.
+
+    Returns
+    -------
+    codes : ndarray of shape (n_rows,), dtype intp
+        ``codes[i]`` is the index into ``runs`` of the run of row ``i``.
+    runs : ndarray of shape (n_runs,), dtype object
+        Run ids, in order of first appearance in ``X``.
+
+    Raises
+    ------
+    TypeError
+        If ``X`` is not a DataFrame.
+    ValueError
+        If the ``run`` column is missing or contains missing ids.
+    """
+    _check_frame(X, caller="run_codes")
+    _check_columns_present(X, (RUN,))
+    return _factorize_ids(X, RUN)
+
+
+def _first_positions(codes: np.ndarray, n_groups: int) -> np.ndarray:
+    """Row position of the first row of every group, for codes in order of first appearance."""
+    if codes.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    seen_before = np.maximum.accumulate(np.concatenate(([-1], codes[:-1])))
+    firsts = np.flatnonzero(codes > seen_before)
+    if firsts.size != n_groups:
+        raise ValueError(
+            "Group codes must be numbered in order of first appearance "
+            "(as returned by run_codes)."
+        )
+    return firsts
+
+
+def group_positions(
+    codes: np.ndarray, n_groups: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row positions sorted by group, keeping row order within each group.
+
+    Parameters
+    ----------
+    codes : array-like of int, shape (n_rows,)
+        Non-negative group code of every row (e.g. from :func:`run_codes`).
+    n_groups : int, optional
+        Number of groups; defaults to ``codes.max() + 1``. Groups without rows
+        get an empty slice.
+
+    Returns
+    -------
+    order : ndarray of shape (n_rows,), dtype intp
+        Row positions; the rows of group ``k`` are
+        ``order[bounds[k]:bounds[k + 1]]``, in their original row order.
+    bounds : ndarray of shape (n_groups + 1,), dtype intp
+        Slice boundaries into ``order``.
+    """
+    codes = np.asarray(codes)
+    if codes.ndim != 1 or not np.issubdtype(codes.dtype, np.integer):
+        raise ValueError(
+            f"codes must be a 1-D integer array, got shape {codes.shape} and "
+            f"dtype {codes.dtype}."
+        )
+    if codes.size and codes.min() < 0:
+        raise ValueError("codes must be non-negative.")
+    if n_groups is None:
+        n_groups = int(codes.max()) + 1 if codes.size else 0
+    counts = np.bincount(codes, minlength=n_groups)
+    if counts.size != n_groups:
+        raise ValueError(f"codes go up to {counts.size - 1}, but n_groups={n_groups}.")
+    bounds = np.zeros(n_groups + 1, dtype=np.intp)
+    np.cumsum(counts, out=bounds[1:])
+    if codes.size < 2 or np.all(codes[1:] >= codes[:-1]):
+        order = np.arange(codes.size, dtype=np.intp)
+    else:
+        # A stable sort keeps row order within a group; small integer types
+        # let numpy use its radix sort.
+        small = np.min_scalar_type(max(n_groups - 1, 0))
+        order = np.argsort(codes.astype(small, copy=False), kind="stable").astype(
+            np.intp, copy=False
+        )
+    return order, bounds
+
+
+def run_positions(X: pd.DataFrame, *, rows=None) -> list[np.ndarray]:
+    """Row positions of every run, in row order.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format; only the ``run`` column is used.
+    rows : array-like of bool, shape (n_rows,), optional
+        Restrict to the rows where ``rows`` is True (e.g. sweep rows). Runs
+        without selected rows get an empty array, so the list always has one
+        entry per run.
+
+    Returns
+    -------
+    positions : list of ndarray of int
+        ``positions[k]`` holds the integer row positions (for ``X.iloc``) of
+        the ``k``-th run in order of first appearance (see :func:`run_codes`).
+    """
+    codes, runs = run_codes(X)
+    selected = np.arange(len(X), dtype=np.intp)
+    if rows is not None:
+        rows = np.asarray(rows)
+        if rows.shape != (len(X),) or rows.dtype != bool:
+            raise ValueError(
+                f"rows must be a boolean mask of shape ({len(X)},), got shape "
+                f"{rows.shape} and dtype {rows.dtype}."
+            )
+        selected = selected[rows]
+    order, bounds = group_positions(codes[selected], len(runs))
+    ordered = selected[order]
+    return [ordered[bounds[k] : bounds[k + 1]] for k in range(len(runs))]
+
+
+# ---------------------------------------------------------------------------
+# target
+# ---------------------------------------------------------------------------
+def check_target(y, n_rows: int) -> np.ndarray:
+    """Validate the tip-position target and return it as a float64 copy.
+
+    Parameters
+    ----------
+    y : array-like or pandas.DataFrame of shape (n_rows, 3)
+        Tip position in the base frame (mm), columns ``p_x, p_y, p_z``. Rows
+        are matched to the recordings by position, not by index label. NaN
+        (tracker dropout) is allowed; +-inf is not.
+    n_rows : int
+        Number of rows of the recordings.
+
+    Returns
+    -------
+    y : ndarray of shape (n_rows, 3), dtype float64
+        A new array; NaN rows are kept (to be masked downstream).
+    """
+    if isinstance(y, pd.Series):
+        raise ValueError(
+            f"y must have shape (n_rows, 3) with the tip position {list(TARGET_NAMES)} "
+            "in mm; got a pandas Series (1-D)."
+        )
+    if isinstance(y, pd.DataFrame):
+        if y.shape[1] != 3:
+            raise ValueError(
+                f"y must have 3 columns (tip position {list(TARGET_NAMES)}, mm); got "
+                f"a DataFrame with columns {[_plain(c) for c in y.columns]}."
+            )
+        values = np.column_stack(
+            [_target_column_as_float(y.iloc[:, j], j) for j in range(3)]
+        )
+    else:
+        try:
+            values = np.array(y, copy=True)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"y must be array-like of shape (n_rows, 3); converting it failed: {exc}"
+            ) from None
+        if values.ndim != 2 or values.shape[1] != 3:
+            raise ValueError(
+                f"y must have shape (n_rows, 3) with the tip position "
+                f"{list(TARGET_NAMES)} in mm; got shape {values.shape}."
+            )
+        if values.dtype.kind in "fiu":
+            values = values.astype(np.float64, copy=False)
+        else:
+            values = np.column_stack(
+                [_target_column_as_float(pd.Series(values[:, j]), j) for j in range(3)]
+            )
+    if values.shape[0] != n_rows:
+        raise ValueError(
+            f"y has {values.shape[0]} rows but the recordings X have {n_rows}; "
+            "y must have one tip position per row of X."
+        )
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    inf = np.isinf(values)
+    if inf.any():
+        row, col = (int(i) for i in np.argwhere(inf)[0])
+        raise ValueError(
+            f"y contains {int(inf.sum())} infinite value(s); first in column "
+            f"{TARGET_NAMES[col]!r} at row position {row}. NaN marks a tracker "
+            "dropout and is allowed, +-inf is not."
+        )
+    return values
+
+
+def _target_column_as_float(series: pd.Series, j: int) -> np.ndarray:
+    """Column ``j`` of y as a float64 array; raise on non-numeric values."""
+    name = TARGET_NAMES[j]
+    dtype = series.dtype
+    if pdt.is_bool_dtype(dtype) or pdt.is_complex_dtype(dtype) or not (
+        pdt.is_numeric_dtype(dtype)
+        or pdt.is_object_dtype(dtype)
+        or pdt.is_string_dtype(dtype)
+    ):
+        raise ValueError(
+            f"y column {j} ({name!r}) must hold real numbers (mm), got dtype {dtype}."
+        )
+    if pdt.is_numeric_dtype(dtype):
+        return series.to_numpy(dtype=np.float64, na_value=np.nan)
+    parsed = pd.to_numeric(series, errors="coerce")
+    values = parsed.to_numpy(dtype=np.float64, na_value=np.nan)
+    bad = np.isnan(values) & ~series.isna().to_numpy(dtype=bool)
+    if pdt.is_bool_dtype(parsed.dtype) or bad.any():
+        first = int(np.flatnonzero(bad)[0]) if bad.any() else 0
+        raise ValueError(
+            f"y column {j} ({name!r}) must be numeric (mm); value "
+            f"{_plain(series.iloc[first])!r} at row position {first} is not a number."
+        )
+    return values
+
+
+# ---------------------------------------------------------------------------
+# main entry point
+# ---------------------------------------------------------------------------
+def check_recordings(
+    X,
+    y=None,
+    *,
+    columns: Sequence[str] = REQUIRED_COLUMNS,
+    require_sweep: bool = True,
+    copy: bool = True,
+) -> tuple[pd.DataFrame, np.ndarray | None]:
+    """Validate recordings in the long format and return checked copies.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        One row per time sample, with the columns of ``docs/data_format.rst``:
+        ids ``catheter``, ``setting``, ``run``; time ``t`` (s); ``phase``
+        (``"sweep"`` then ``"motion"`` in every run); motor angles ``q1``,
+        ``q2`` (degrees); drive torques ``tau1``, ``tau2``; reference tip
+        ``ref_x``, ``ref_y``, ``ref_z`` (mm, base frame; NaN allowed). Rows of
+        different runs may be interleaved; within a run, rows must be in time
+        order.
+    y : array-like or pandas.DataFrame of shape (n_rows, 3), optional
+        Tip position in the base frame (mm), matched to ``X`` by row position.
+        NaN rows (tracker dropouts) are allowed and kept.
+    columns : sequence of str, default ``REQUIRED_COLUMNS``
+        Columns that must be present. The ``run`` column is always required.
+        The checks of the known columns (ids, numeric channels, ``phase``) run
+        for those listed here; other listed columns are only checked for
+        presence. Columns of ``X`` not listed are passed through unchecked.
+    require_sweep : bool, default True
+        Require every run to contain at least one sweep row (needs ``phase``
+        in ``columns``). Sweep rows must precede motion rows in any case.
+    copy : bool, default True
+        Return a deep copy of ``X``. With False, the returned frame may share
+        unconverted column data with ``X`` (pandas copy-on-write still keeps
+        ``X`` unchanged when the result is modified).
+
+    Returns
+    -------
+    X_checked : pandas.DataFrame
+        A new frame with the same columns, index and row order as ``X``; the
+        numeric channels among ``columns`` are float64.
+    y_checked : ndarray of shape (n_rows, 3), dtype float64, or None
+        A copy of ``y``, or None when ``y`` is None.
+
+    Raises
+    ------
+    TypeError
+        If ``X`` is not a pandas DataFrame.
+    ValueError
+        On any violation of the format; the message names the column and,
+        where it applies, the run id and row label.
+
+    Notes
+    -----
+    The inputs are never modified. The checks are vectorised; on 1.25 million
+    rows in 204 runs they take a fraction of a second.
+    """
+    _check_frame(X)
+    if isinstance(columns, str):
+        columns = (columns,)
+    required = list(dict.fromkeys([*columns, RUN]))
+    _check_columns_present(X, required)
+
+    codes, runs = _factorize_ids(X, RUN)
+    first_positions = _first_positions(codes, len(runs))
+    for column in (CATHETER, SETTING):
+        if column in required:
+            _check_run_ids_unique(X, codes, runs, first_positions, column)
+
+    converted: dict[str, np.ndarray] = {}
+    for column in NUMERIC_COLUMNS:
+        if column in required:
+            values = _column_as_float(X, column)
+            _check_finite(X, column, values, allow_nan=column not in FINITE_COLUMNS)
+            converted[column] = values
+
+    order = None
+    if PHASE in required:
+        sweep, _ = _phase_masks(X)
+        order, bounds = group_positions(codes, len(runs))
+        _check_phase_order(
+            X, sweep, codes, runs, order, bounds, require_sweep=require_sweep
+        )
+    elif require_sweep:
+        raise ValueError(
+            f"require_sweep=True needs the {PHASE!r} column; add it to `columns` "
+            "or pass require_sweep=False."
+        )
+    if TIME in required:
+        if order is None:
+            order, _ = group_positions(codes, len(runs))
+        _check_time_order(X, converted[TIME], codes, runs, order)
+
+    y_checked = None if y is None else check_target(y, len(X))
+
+    X_checked = X.copy(deep=copy)
+    for column, values in converted.items():
+        if X_checked[column].dtype != np.float64:
+            X_checked[column] = values
+    return X_checked, y_checked

@@ -1,0 +1,19 @@
+"""Simulated recordings: the physics-based benchmark that is skcath's default data."""
+
+from ._benchmark import SIMULATOR_VERSION, clear_data_home, get_data_home, make_benchmark
+from ._catheter import Catheter, ShaftSetting, sample_catheter, shaft_settings
+from ._hysteresis import MECHANISMS
+from ._simulator import simulate_run
+
+__all__ = [
+    "MECHANISMS",
+    "SIMULATOR_VERSION",
+    "Catheter",
+    "ShaftSetting",
+    "clear_data_home",
+    "get_data_home",
+    "make_benchmark",
+    "sample_catheter",
+    "shaft_settings",
+    "simulate_run",
+]

@@ -1,0 +1,302 @@
+"""Catheter units, shaft settings, and the parameters of one run.
+
+Three levels of variation, as on a bench:
+
+* **catheter** (unit-to-unit): geometry of the bending section, tendon
+  gains, offsets, friction coefficient, play, drive-train constants, and the
+  mounting of the base sensor;
+* **shaft setting** (the passive shaft held bent in one of 8 directions at
+  one of 2 levels, or straight): the capstan wrap ``Theta`` of the tendons
+  through the shaft, which changes play, dead zone, gains, offsets, coupling
+  and resting curvature, each through a physical route documented below;
+* **run** (repeats of one setting): small gain and offset jitter, slow drift,
+  and the slightly different base pose after re-installation.
+"""
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["Catheter", "ShaftSetting", "sample_catheter", "shaft_settings", "TENDON_AZIMUTHS"]
+
+#: Azimuth of the tendon pulled by a positive / negative input of each axis
+#: (rad); axis 1 bends towards +x, axis 2 towards +y.
+TENDON_AZIMUTHS = np.array([[0.0, np.pi], [np.pi / 2, 3 * np.pi / 2]])
+
+
+@dataclass(frozen=True)
+class ShaftSetting:
+    """One configuration of the passive shaft, held fixed during a run.
+
+    Attributes
+    ----------
+    name : str
+        Setting id, ``"S00"`` for straight.
+    level : str
+        ``"straight"``, ``"low"`` or ``"high"``.
+    direction_deg : float
+        Direction of the shaft bend about the catheter axis (degrees); NaN
+        when straight.
+    bend_deg : float
+        Total capstan wrap of the tendons through the shaft (degrees),
+        including the curvature a straight setting still has in the
+        introducer and the robot.
+    """
+
+    name: str
+    level: str
+    direction_deg: float
+    bend_deg: float
+
+    @property
+    def wrap(self):
+        """Capstan wrap angle ``Theta`` (rad)."""
+        return np.deg2rad(self.bend_deg)
+
+    def bend_vector(self):
+        """Unit vector of the bend direction, zero when straight."""
+        if self.level == "straight":
+            return np.zeros(2)
+        b = np.deg2rad(self.direction_deg)
+        return np.array([np.cos(b), np.sin(b)])
+
+
+def shaft_settings(*, n_directions=8, levels=(("low", 90.0), ("high", 180.0)), straight_wrap_deg=30.0):
+    """The protocol's shaft settings: straight, then directions x levels.
+
+    Parameters
+    ----------
+    n_directions : int
+        Number of evenly spaced shaft-bend directions.
+    levels : sequence of (str, float)
+        Name and added capstan wrap (degrees) of each bend level.
+    straight_wrap_deg : float
+        Wrap of the straight setting (introducer and robot), added to every level.
+
+    Returns
+    -------
+    settings : list of ShaftSetting
+        ``1 + n_directions * len(levels)`` settings named ``S00``, ``S01``, ...
+        (17 by default: straight, 8 low, 8 high).
+    """
+    out = [ShaftSetting("S00", "straight", float("nan"), straight_wrap_deg)]
+    for level, wrap in levels:
+        for k in range(n_directions):
+            out.append(
+                ShaftSetting(
+                    f"S{len(out):02d}", level, 360.0 * k / n_directions, straight_wrap_deg + wrap
+                )
+            )
+    return out
+
+
+@dataclass(frozen=True)
+class Catheter:
+    """Physical parameters of one catheter unit (lengths mm, angles rad unless noted).
+
+    Attributes
+    ----------
+    name : str
+        Catheter id.
+    length, tip_length : float
+        Bending-section and rigid-tip lengths (mm).
+    split_fraction, split_bias, split_slope : float
+        Uneven curvature: the proximal sub-arc spans ``split_fraction`` of the
+        length and takes the share ``split_fraction + split_bias +
+        split_slope (a - 1)`` of the bend ``a``.
+    max_bend : float
+        Saturation of the bend magnitude (rad).
+    twist : float
+        Twist of the bend plane per radian of bend.
+    coupling : ndarray of shape (2,)
+        Cross-axis coupling ``(c12, c21)`` between the tendon pairs.
+    rest_bend : ndarray of shape (2,)
+        Resting curvature of the bending section (rad).
+    gains : ndarray of shape (2, 2)
+        Bend per effective tendon input (rad/deg) of each axis (rows) for
+        positive / negative inputs (columns).
+    offsets : ndarray of shape (2,)
+        Motor offsets of the two axes (degrees).
+    mu : float
+        Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
+    play_w0, play_growth_scale, play_asym : float
+        Play width at zero load (deg), scale of its growth with load, and
+        unloading/loading width ratio.
+    bw_kappa : float
+        Bouc-Wen sharpness.
+    rate_gain, rate_speed, creep_gain, creep_tau : float
+        Rate dependence of the friction limit (gain, deg/s) and tendon creep
+        (gain, s) of the rate-dependent mechanism.
+    dead_zone0, dead_zone_growth : float
+        Dead-zone width at zero wrap (deg) and its growth (deg per rad of wrap).
+    offset_shift : float
+        Motor offset per rad of wrap in the shaft-bend direction (deg/rad).
+    gain_shift, gain_loss : float
+        Relative gain change per rad of wrap along the shaft-bend direction,
+        and the fraction of the capstan loss that reduces the gain.
+    rest_shift, coupling_shift, twist_shift : float
+        Change of resting curvature, coupling and twist per rad of wrap.
+    pulley_radius, pretension, stiffness : float
+        Drive pulley radius (mm), tendon pretension (N), tendon load per degree
+        of effective input (N/deg).
+    motor_friction, motor_viscous, torque_noise, torque_step : float
+        Coulomb friction (N mm), viscous friction (N mm s/deg), noise standard
+        deviation (N mm) and quantisation step (N mm) of the reported torque.
+    mount_rotvec : ndarray of shape (3,)
+        Rotation from the kinematic base frame to the base-sensor frame B.
+    mount_position : ndarray of shape (3,)
+        Base-sensor origin in the kinematic base frame (mm).
+    """
+
+    name: str
+    length: float
+    tip_length: float
+    split_fraction: float
+    split_bias: float
+    split_slope: float
+    max_bend: float
+    twist: float
+    coupling: np.ndarray
+    rest_bend: np.ndarray
+    gains: np.ndarray
+    offsets: np.ndarray
+    mu: float
+    play_w0: float
+    play_growth_scale: float
+    play_asym: float
+    bw_kappa: float
+    rate_gain: float
+    rate_speed: float
+    creep_gain: float
+    creep_tau: float
+    dead_zone0: float
+    dead_zone_growth: float
+    offset_shift: float
+    gain_shift: float
+    gain_loss: float
+    rest_shift: float
+    coupling_shift: float
+    twist_shift: float
+    pulley_radius: float
+    pretension: float
+    stiffness: float
+    motor_friction: float
+    motor_viscous: float
+    torque_noise: float
+    torque_step: float
+    mount_rotvec: np.ndarray
+    mount_position: np.ndarray
+
+    def to_dict(self):
+        """Parameters as a plain dict (arrays as lists)."""
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
+
+
+def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=1.4):
+    """Draw one catheter unit of the family.
+
+    Parameters
+    ----------
+    random_state : int, numpy.random.Generator or numpy.random.SeedSequence
+        Source of randomness.
+    name : str
+        Catheter id.
+    gain_deg_per_deg : float
+        Nominal bend per degree of effective tendon input (deg/deg).
+
+    Returns
+    -------
+    catheter : Catheter
+    """
+    rng = np.random.default_rng(random_state)
+    u = rng.uniform
+    n = rng.normal
+    gains = np.deg2rad(gain_deg_per_deg) * (1.0 + n(0.0, 0.06, size=(2, 2)))
+    tilt_axis = n(size=2)
+    tilt_axis /= np.linalg.norm(tilt_axis)
+    tilt = np.deg2rad(u(25.0, 35.0))
+    mount = Rotation.from_rotvec(np.r_[tilt * tilt_axis, 0.0]) * Rotation.from_rotvec(
+        [0.0, 0.0, u(-np.pi, np.pi)]
+    )
+    return Catheter(
+        name=name,
+        length=u(38.0, 46.0),
+        tip_length=u(9.0, 12.0),
+        split_fraction=u(0.4, 0.6),
+        split_bias=n(0.0, 0.08),
+        split_slope=n(0.12, 0.04),
+        max_bend=np.deg2rad(u(110.0, 140.0)),
+        twist=n(0.0, 0.08),
+        coupling=n(0.0, 0.06, size=2),
+        rest_bend=np.deg2rad(n(0.0, 2.0, size=2)),
+        gains=gains,
+        offsets=n(0.0, 1.5, size=2),
+        mu=u(0.10, 0.20),
+        play_w0=u(1.5, 2.5),
+        play_growth_scale=u(0.18, 0.24),
+        play_asym=u(0.6, 0.9),
+        bw_kappa=u(0.3, 0.6),
+        rate_gain=u(0.3, 0.6),
+        rate_speed=u(5.0, 15.0),
+        creep_gain=u(0.04, 0.08),
+        creep_tau=u(3.0, 8.0),
+        dead_zone0=u(1.0, 2.0),
+        dead_zone_growth=u(0.5, 1.0),
+        offset_shift=u(1.0, 2.5),
+        gain_shift=u(0.03, 0.06),
+        gain_loss=u(0.3, 0.5),
+        rest_shift=u(0.02, 0.05),
+        coupling_shift=u(0.01, 0.03),
+        twist_shift=u(0.01, 0.03),
+        pulley_radius=u(9.0, 11.0),
+        pretension=u(1.5, 2.5),
+        stiffness=u(0.12, 0.18),
+        motor_friction=u(3.0, 6.0),
+        motor_viscous=u(0.1, 0.3),
+        torque_noise=3.0,
+        torque_step=0.5,
+        mount_rotvec=mount.as_rotvec(),
+        mount_position=np.array([n(0.0, 1.0), n(0.0, 1.0), -u(2.0, 6.0)]),
+    )
+
+
+def configure(catheter, setting):
+    """Parameters of a catheter in a shaft setting (before per-run variation).
+
+    Physical routes of the shaft configuration (``Theta`` = capstan wrap in
+    rad, ``b`` = unit shaft-bend direction):
+
+    * play growth ``a = scale (1 - exp(-mu Theta))`` (capstan friction) and a
+      dead zone ``d0 + d1 Theta`` (slack of the tendon pair);
+    * gains: capstan loss ``1 - loss (1 - exp(-mu Theta))`` for all tendons,
+      and a path-length change ``1 + shift Theta cos(beta - az_tendon)`` for
+      the tendon at azimuth ``az_tendon``;
+    * motor offsets ``shift Theta b`` (the outer tendon is pre-stretched);
+    * resting curvature, coupling and twist nudged along the bend direction.
+
+    Returns
+    -------
+    params : dict
+        Scalars and small arrays used by the simulator.
+    """
+    c = catheter
+    theta = setting.wrap
+    bvec = setting.bend_vector()
+    beta = np.arctan2(bvec[1], bvec[0])
+    capstan = 1.0 - np.exp(-c.mu * theta)
+    bent = float(np.any(bvec != 0))
+    path = 1.0 + c.gain_shift * theta * bent * np.cos(beta - TENDON_AZIMUTHS)
+    gains = c.gains * (1.0 - c.gain_loss * capstan) * path
+    sin2, cos2 = np.sin(2 * beta) * bent, np.cos(2 * beta) * bent
+    return {
+        "gains": gains,
+        "offsets": c.offsets + c.offset_shift * theta * bvec,
+        "rest_bend": c.rest_bend + c.rest_shift * theta * bvec,
+        "coupling": c.coupling + c.coupling_shift * theta * np.array([sin2, cos2]),
+        "twist": c.twist + c.twist_shift * theta * np.sin(beta) * bent,
+        "w0": c.play_w0,
+        "growth": c.play_growth_scale * capstan,
+        "dead_zone": c.dead_zone0 + c.dead_zone_growth * theta,
+        "capstan_exponent": c.mu * theta,
+    }

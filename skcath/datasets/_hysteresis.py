@@ -1,0 +1,145 @@
+"""Hysteresis of the tendon transmission: three interchangeable mechanisms.
+
+Each mechanism maps the motor input ``u`` (degrees, one column per bending
+axis) to the effective tendon input ``v`` that reaches the bending section,
+and reports the friction utilisation ``phi`` in [-1, 1] (+1 while the
+proximal tendon is being pulled through the sheath, -1 while it is being
+released), which sets the capstan factor of the drive torque.
+
+All mechanisms share a load-dependent width
+
+    w(u) = w0 + a |u|,
+
+where ``a`` grows with the capstan wrap of the shaft (``1 - exp(-mu Theta)``),
+so loops widen with shaft bend and with load. The time loop is vectorised
+across runs and axes: arrays have shape ``(n_steps, n_runs, 2)``.
+"""
+
+import numpy as np
+
+__all__ = ["MECHANISMS", "simulate_transmission"]
+
+MECHANISMS = ("play", "bouc_wen", "dahl_creep")
+
+
+def _width(u, params):
+    return params["w0"] + params["growth"] * np.abs(u)
+
+
+def _play(u, dt, params):
+    """Load-dependent play operator (Coulomb friction and an elastic tendon).
+
+    ``z_k = clip(z_{k-1}, u_k - w(u_k), u_k + r w(u_k))``: the output lags the
+    input by ``w`` while loading and by ``r w`` while unloading.
+    """
+    n = u.shape[0]
+    r = params["asym"]
+    v = np.empty_like(u)
+    phi = np.empty_like(u)
+    z = u[0].copy()
+    for k in range(n):
+        w = _width(u[k], params)
+        z = np.clip(z, u[k] - w, u[k] + r * w)
+        lag = u[k] - z
+        v[k] = z
+        phi[k] = (2.0 * lag + (r - 1.0) * w) / ((1.0 + r) * w)
+    return v, phi
+
+
+def _bouc_wen(u, dt, params):
+    """Asymmetric Bouc-Wen lag ``h`` (degrees); output ``v = u - h``.
+
+    Discrete update with ``A = 1``::
+
+        h_k = (h + du + delta |du| - gamma du |h|) / (1 + beta |du|),
+        W = w(u) (1 + r) / 2,  beta + gamma = 1 / W,  gamma = kappa / W,
+        delta = (1 - r) / (1 + r),
+
+    so the lag saturates at ``w`` while loading and at ``-r w`` while
+    unloading (as the play operator), and ``kappa`` sets how sharply the
+    branch turns after a reversal.
+    """
+    n = u.shape[0]
+    r = params["asym"]
+    delta = (1.0 - r) / (1.0 + r)
+    kappa = params["kappa"]
+    v = np.empty_like(u)
+    phi = np.empty_like(u)
+    h = np.zeros_like(u[0])
+    u_prev = u[0]
+    for k in range(n):
+        du = u[k] - u_prev
+        u_prev = u[k]
+        w = _width(u[k], params) * (0.5 + 0.5 * r)
+        adu = np.abs(du)
+        h = (h + du + delta * adu - (kappa / w) * du * np.abs(h)) / (1.0 + ((1.0 - kappa) / w) * adu)
+        v[k] = u[k] - h
+        phi[k] = np.clip(h / w - delta, -1.0, 1.0)
+    return v, phi
+
+
+def _dahl_creep(u, dt, params):
+    """Rate-dependent Dahl friction with viscoelastic tendon creep.
+
+    The friction lag ``h`` follows a Dahl model whose limit grows with the
+    motor speed (viscous drag in the sheath)::
+
+        w_v = w(u) (1 + c_v tanh(|du/dt| / v_s)),   h_k = (h + du) / (1 + |du| / w_v).
+
+    The tendon creeps under load: ``c`` relaxes towards ``kappa_c (u - h)``
+    with time constant ``tau_c``, so a slow sweep and a fast move reach the
+    same motor angle with different outputs. Output ``v = u - h - c``.
+    """
+    n = u.shape[0]
+    rate_gain, rate_speed = params["rate_gain"], params["rate_speed"]
+    creep_gain = params["creep_gain"]
+    relax = 1.0 - np.exp(-dt / params["creep_tau"])
+    v = np.empty_like(u)
+    phi = np.empty_like(u)
+    h = np.zeros_like(u[0])
+    c = np.zeros_like(u[0])
+    u_prev = u[0]
+    for k in range(n):
+        du = u[k] - u_prev
+        u_prev = u[k]
+        w = _width(u[k], params) * (1.0 + rate_gain * np.tanh(np.abs(du) / (dt * rate_speed)))
+        h = (h + du) / (1.0 + np.abs(du) / w)
+        c = c + (creep_gain * (u[k] - h) - c) * relax
+        v[k] = u[k] - h - c
+        phi[k] = np.clip(h / w, -1.0, 1.0)
+    return v, phi
+
+
+_STEPPERS = {"play": _play, "bouc_wen": _bouc_wen, "dahl_creep": _dahl_creep}
+
+
+def simulate_transmission(u, dt, params, mechanism="play"):
+    """Run a hysteresis mechanism over padded motor inputs of many runs.
+
+    Parameters
+    ----------
+    u : ndarray of shape (n_steps, n_runs, 2)
+        Motor input of each bending axis (degrees), after configuration
+        offsets. Pad finished runs by repeating their last value.
+    dt : float
+        Sampling period (s).
+    params : dict of ndarray of shape (n_runs, 2)
+        ``w0`` (deg), ``growth`` (deg/deg), ``asym`` (unloading/loading width
+        ratio); ``kappa`` for ``"bouc_wen"``; ``rate_gain``, ``rate_speed``
+        (deg/s), ``creep_gain``, ``creep_tau`` (s) for ``"dahl_creep"``.
+    mechanism : {"play", "bouc_wen", "dahl_creep"}
+        Hysteresis mechanism.
+
+    Returns
+    -------
+    v : ndarray of shape (n_steps, n_runs, 2)
+        Effective tendon input at the bending section (degrees).
+    phi : ndarray of shape (n_steps, n_runs, 2)
+        Friction utilisation in [-1, 1].
+    """
+    if mechanism not in _STEPPERS:
+        raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
+    u = np.asarray(u, dtype=float)
+    if u.ndim != 3 or u.shape[2] != 2:
+        raise ValueError(f"u must have shape (n_steps, n_runs, 2); got {u.shape}.")
+    return _STEPPERS[mechanism](u, dt, params)

@@ -1,0 +1,307 @@
+"""Simulation of recordings: protocol -> transmission -> kinematics -> sensors.
+
+The per-sample time loop (hysteresis state) runs once for all runs at once;
+everything stateless is vectorised over samples.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lfilter
+from scipy.spatial.transform import Rotation
+from sklearn.utils import Bunch
+
+from .. import _format as fmt
+from ..frames import tip_in_base_frame
+from ._catheter import Catheter, ShaftSetting, configure, sample_catheter, shaft_settings
+from ._hysteresis import MECHANISMS, simulate_transmission
+from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
+from ._protocol import run_protocol
+from ._sensors import DistortionField, measure_pose
+
+__all__ = ["RunSpec", "simulate_runs", "simulate_run"]
+
+RATE_HZ = 10.0
+
+#: Per-run variation (standard deviations): gain jitter (relative), offset
+#: jitter (deg), slow drift of offsets (deg, time constant s) and of gains
+#: (relative, time constant s), re-installation of the base (mm, deg).
+RUN_VARIATION = {
+    "gain_jitter": 0.015,
+    "offset_jitter_deg": 0.4,
+    "offset_drift_deg": 0.6,
+    "offset_drift_tau_s": 60.0,
+    "gain_drift": 0.02,
+    "gain_drift_tau_s": 120.0,
+    "base_position_mm": 2.0,
+    "base_rotation_deg": 2.0,
+}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What to simulate for one run: a catheter in a setting, and a seed."""
+
+    run: str
+    catheter: Catheter
+    setting: ShaftSetting
+    repeat: int
+    seed: np.random.SeedSequence
+
+
+def _ou(rng, n, std, tau_s, size=2):
+    """Stationary Ornstein-Uhlenbeck series of shape (n, size) sampled at RATE_HZ."""
+    phi = np.exp(-1.0 / (RATE_HZ * tau_s))
+    white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, size))
+    white[0] = rng.normal(0.0, std, size=size)
+    return lfilter([1.0], [1.0, -phi], white, axis=0)
+
+
+def _soft_dead_zone(v, width):
+    """``v - d tanh(v / d)``: zero slope at neutral, ``v - d sign(v)`` far from it."""
+    return v - width * np.tanh(v / width)
+
+
+def _axis_gains(e, gains):
+    """Bend (rad) per axis with sign-dependent gains blended over about 1 deg."""
+    s = 0.5 * (1.0 + np.tanh(e / 1.0))
+    return e * (s * gains[:, 0] + (1.0 - s) * gains[:, 1])
+
+
+def _base_pose(rng, setting):
+    """Pose of the bending-section base in the tracker frame for one run (mm)."""
+    bvec = setting.bend_vector()
+    visible = 0.5 * (setting.bend_deg - 30.0)
+    shaft = Rotation.from_rotvec(np.deg2rad(visible) * np.array([-bvec[1], bvec[0], 0.0]))
+    jitter = Rotation.from_rotvec(rng.normal(0.0, np.deg2rad(RUN_VARIATION["base_rotation_deg"]), 3))
+    position = np.array([0.0, 0.0, 250.0]) + 0.3 * visible * np.r_[bvec, 0.0]
+    position = position + rng.normal(0.0, RUN_VARIATION["base_position_mm"], 3)
+    return shaft * jitter, position
+
+
+def _draw_run(spec):
+    """Per-run random quantities that do not need the time loop."""
+    rng = np.random.default_rng(spec.seed)
+    q, n_sweep = run_protocol(rng, rate_hz=RATE_HZ)
+    n = len(q)
+    cfg = configure(spec.catheter, spec.setting)
+    v = RUN_VARIATION
+    offsets = cfg["offsets"] + rng.normal(0.0, v["offset_jitter_deg"], 2)
+    offsets = offsets + _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
+    gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
+    return {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
+
+
+def _transmission_params(specs, configs):
+    """Hysteresis parameters of shape (n_runs, 2) for simulate_transmission."""
+    def col(values):
+        return np.repeat(np.asarray(values, dtype=float)[:, None], 2, axis=1)
+
+    cats = [s.catheter for s in specs]
+    return {
+        "w0": col([c["w0"] for c in configs]),
+        "growth": col([c["growth"] for c in configs]),
+        "asym": col([c.play_asym for c in cats]),
+        "kappa": col([c.bw_kappa for c in cats]),
+        "rate_gain": col([c.rate_gain for c in cats]),
+        "rate_speed": col([c.rate_speed for c in cats]),
+        "creep_gain": col([c.creep_gain for c in cats]),
+        "creep_tau": col([c.creep_tau for c in cats]),
+    }
+
+
+def _finish_run(spec, draw, v, phi, field, dropout_rate):
+    """Kinematics, torque and EM sensors of one run, vectorised over samples."""
+    cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
+    q, n = draw["q"], len(draw["q"])
+    e = _soft_dead_zone(v, cfg["dead_zone"])
+    theta = _axis_gains(e, cfg["gains"]) * draw["gain_scale"]
+    c12, c21 = cfg["coupling"]
+    theta = theta @ np.array([[1.0, c21], [c12, 1.0]])
+    a, delta = bend_from_inputs(theta, rest=cfg["rest_bend"], max_bend=cat.max_bend, twist=cfg["twist"])
+    share = np.clip(cat.split_fraction + cat.split_bias + cat.split_slope * (a - 1.0), 0.1, 0.9)
+    p_k = tip_position(
+        a, delta, length=cat.length, tip_length=cat.tip_length,
+        split_fraction=cat.split_fraction, split_share=share,
+    )
+
+    # drive torque: antagonistic tendon pair through the capstan of the shaft
+    exponent = (cfg["capstan_exponent"] + cat.mu * a)[:, None] * phi
+    pos = (cat.pretension + cat.stiffness * np.maximum(e, 0.0)) * np.exp(exponent)
+    neg = (cat.pretension + cat.stiffness * np.maximum(-e, 0.0)) * np.exp(-exponent)
+    omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
+    tau = cat.pulley_radius * (pos - neg) + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
+    tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
+    tau = np.round(tau / cat.torque_step) * cat.torque_step
+
+    # base frame and sensors
+    mount = Rotation.from_rotvec(cat.mount_rotvec)  # kinematic frame K -> base-sensor frame B
+    y_true = mount.apply(p_k - cat.mount_position)
+    r_wk, p_wk = _base_pose(rng, spec.setting)
+    tip_pos = p_wk + r_wk.apply(p_k)
+    tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
+    base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
+    base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
+    tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
+    base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
+    if dropout_rate > 0:
+        lost = rng.random(n) < dropout_rate
+        tip_meas[lost] = np.nan
+        tip_quat[lost] = np.nan
+    y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
+    sensors = np.column_stack([tip_meas, tip_quat, base_meas, base_quat])
+    return tau, y, y_true, sensors
+
+
+def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
+    """Simulate many runs at once.
+
+    Parameters
+    ----------
+    specs : sequence of RunSpec
+        Runs to simulate.
+    mechanism : {"play", "bouc_wen", "dahl_creep"}
+        Hysteresis mechanism of the tendon transmission.
+    field : DistortionField or None
+        Field distortion of the tracker (None: no distortion).
+    dropout_rate : float
+        Probability that the tip sensor is lost at a sample (NaN target).
+
+    Returns
+    -------
+    bunch : sklearn.utils.Bunch
+        ``X`` (long format), ``y``, ``y_true``, ``sensors`` and ``runs``
+        (one row per run with its noise floor); see :func:`make_benchmark`.
+    """
+    if mechanism not in MECHANISMS:
+        raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
+    if not 0.0 <= dropout_rate < 1.0:
+        raise ValueError(f"dropout_rate must be in [0, 1); got {dropout_rate!r}.")
+    draws = [_draw_run(s) for s in specs]
+    lengths = np.array([len(d["q"]) for d in draws])
+    n_max = lengths.max()
+    u = np.empty((n_max, len(specs), 2))
+    for j, d in enumerate(draws):
+        u[: lengths[j], j] = d["u"]
+        u[lengths[j]:, j] = d["u"][-1]
+    v_all, phi_all = simulate_transmission(
+        u, 1.0 / RATE_HZ, _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
+    )
+
+    frames, ys, ys_true, sensors, rows = [], [], [], [], []
+    for j, (spec, d) in enumerate(zip(specs, draws)):
+        n = lengths[j]
+        tau, y, y_true, sens = _finish_run(spec, d, v_all[:n, j], phi_all[:n, j], field, dropout_rate)
+        sweep = np.arange(n) < d["n_sweep"]
+        ref = np.where(sweep[:, None], y, np.nan)
+        frames.append(
+            pd.DataFrame(
+                {
+                    fmt.CATHETER: spec.catheter.name,
+                    fmt.SETTING: spec.setting.name,
+                    fmt.RUN: spec.run,
+                    fmt.TIME: np.arange(n) / RATE_HZ,
+                    fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
+                    "q1": d["q"][:, 0], "q2": d["q"][:, 1],
+                    "tau1": tau[:, 0], "tau2": tau[:, 1],
+                    "ref_x": ref[:, 0], "ref_y": ref[:, 1], "ref_z": ref[:, 2],
+                }
+            )
+        )
+        ys.append(y)
+        ys_true.append(y_true)
+        sensors.append(sens)
+        err = np.linalg.norm(y[~sweep] - y_true[~sweep], axis=1)
+        rows.append(
+            {
+                "run": spec.run,
+                "catheter": spec.catheter.name,
+                "setting": spec.setting.name,
+                "repeat": spec.repeat,
+                "bend_level": spec.setting.level,
+                "bend_direction_deg": spec.setting.direction_deg,
+                "shaft_wrap_deg": spec.setting.bend_deg,
+                "n_samples": int(n),
+                "n_sweep": int(d["n_sweep"]),
+                "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
+            }
+        )
+    X = pd.concat(frames, ignore_index=True)
+    for col in (*fmt.ID_COLUMNS, fmt.PHASE):
+        X[col] = X[col].astype("category")
+    sensor_cols = [c for group in fmt.SENSOR_POSE_COLUMNS.values() for c in group]
+    runs = pd.DataFrame(rows)
+    return Bunch(
+        X=X,
+        y=np.concatenate(ys),
+        y_true=np.concatenate(ys_true),
+        sensors=pd.DataFrame(np.concatenate(sensors), columns=sensor_cols),
+        runs=runs,
+        noise_floor=float(runs["noise_floor_mm"].mean()),
+        mechanism=mechanism,
+    )
+
+
+def simulate_run(
+    catheter=None,
+    setting=None,
+    *,
+    mechanism="play",
+    random_state=None,
+    run="run-0",
+    field=True,
+    dropout_rate=0.0,
+):
+    """Simulate one recording: an 8-ray sweep then a 100-step random walk at 10 Hz.
+
+    Parameters
+    ----------
+    catheter : Catheter or None
+        Catheter unit; None draws one from ``random_state``.
+    setting : ShaftSetting, str or None
+        Shaft setting, or the name of one of :func:`shaft_settings`
+        (``"S00"`` straight, ``"S01"``-``"S08"`` low, ``"S09"``-``"S16"``
+        high bend); None is ``"S01"``.
+    mechanism : {"play", "bouc_wen", "dahl_creep"}
+        Hysteresis mechanism of the tendon transmission.
+    random_state : int, numpy.random.Generator or None
+        Seed of the catheter draw (when ``catheter`` is None), the field
+        distortion, the protocol and all noise.
+    run : str
+        Run id written to the ``run`` column.
+    field : bool
+        Whether the tracker field is distorted.
+    dropout_rate : float
+        Probability that the tip sensor is lost at a sample (NaN target).
+
+    Returns
+    -------
+    bunch : sklearn.utils.Bunch
+        ``X`` (long format, see ``docs/data_format.rst``), ``y`` (n, 3)
+        measured tip in the base frame (mm), ``y_true`` (n, 3) noise-free tip,
+        ``sensors`` (raw EM poses), ``runs`` (one row), ``noise_floor`` (mm).
+    """
+    seeds = np.random.SeedSequence(_entropy(random_state)).spawn(3)
+    if catheter is None:
+        catheter = sample_catheter(seeds[0], "C1")
+    if setting is None or isinstance(setting, str):
+        name = "S01" if setting is None else setting
+        table = {s.name: s for s in shaft_settings()}
+        if name not in table:
+            raise ValueError(f"setting={name!r} is not one of {sorted(table)}.")
+        setting = table[name]
+    spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1])
+    dist = DistortionField(seeds[2]) if field else None
+    return simulate_runs([spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate)
+
+
+def _entropy(random_state):
+    """Integer entropy from an int, a Generator or None."""
+    if random_state is None:
+        return None
+    if isinstance(random_state, np.random.Generator):
+        return int(random_state.integers(2**63))
+    if isinstance(random_state, (int, np.integer)) and not isinstance(random_state, bool) and random_state >= 0:
+        return int(random_state)
+    raise ValueError(f"random_state must be a non-negative int, a numpy Generator or None; got {random_state!r}.")

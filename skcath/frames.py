@@ -1,0 +1,347 @@
+"""Coordinate frames: tip position in the base frame from two sensor poses.
+
+An electromagnetic (EM) tracker reports the pose of each 6-DOF sensor in its
+own world frame W. With one sensor at the tip of the catheter (T) and one at
+the base of the bending section (B), the tip position expressed in the base
+frame is
+
+.. math::
+
+    p = R_{WB}^{\\top} \\, (p_{WT} - p_{WB}),
+
+where :math:`p_{WT}` and :math:`p_{WB}` are the sensor positions in W (mm)
+and :math:`R_{WB}` is the orientation of the base sensor in W. Expressed in
+B, the tip position no longer depends on where the catheter lies in the
+tracker volume, only on how the bending section is bent.
+
+Quaternions are accepted scalar first (``"wxyz"``, as NDI Aurora exports
+write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
+"""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["QUAT_ORDERS", "quaternion_to_rotation", "tip_in_base_frame"]
+
+#: Accepted quaternion component orders: scalar first or scalar last.
+QUAT_ORDERS = ("wxyz", "xyzw")
+
+# Column permutation that brings a quaternion of the given order to the
+# scalar-last (x, y, z, w) layout that ``Rotation.from_quat`` expects.
+_TO_XYZW = {"wxyz": [1, 2, 3, 0], "xyzw": [0, 1, 2, 3]}
+
+# Quaternions with a norm below this are treated as zero (no orientation).
+_MIN_QUAT_NORM = 1e-12
+
+
+def _check_quat_order(quat_order):
+    """Return ``quat_order`` if it is one of :data:`QUAT_ORDERS`.
+
+    Parameters
+    ----------
+    quat_order : object
+        Value given by the caller.
+
+    Returns
+    -------
+    quat_order : str
+        The validated order.
+
+    Raises
+    ------
+    ValueError
+        If ``quat_order`` is not ``"wxyz"`` or ``"xyzw"``.
+    """
+    if not isinstance(quat_order, str) or quat_order not in QUAT_ORDERS:
+        raise ValueError(
+            f"quat_order must be one of {QUAT_ORDERS} ('wxyz' = scalar first, "
+            f"'xyzw' = scalar last); got {quat_order!r}."
+        )
+    return quat_order
+
+
+def _as_float_array(values, name, expected):
+    """Convert an array-like to a new float64 array.
+
+    Parameters
+    ----------
+    values : array-like
+        Input given by the caller; never modified.
+    name : str
+        Parameter name used in error messages.
+    expected : str
+        Description of the expected shape, for error messages.
+
+    Returns
+    -------
+    array : ndarray, dtype float64
+        A copy of the input.
+
+    Raises
+    ------
+    ValueError
+        If the input cannot be converted to a numeric array.
+    """
+    try:
+        return np.array(values, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} must be a numeric array of shape {expected}; "
+            f"it could not be converted to float ({exc})."
+        ) from None
+
+
+def _as_float_rows(values, name, width):
+    """Convert an array-like to a new float array of shape ``(n, width)``.
+
+    Parameters
+    ----------
+    values : array-like
+        Input given by the caller; never modified.
+    name : str
+        Parameter name used in error messages.
+    width : int
+        Required number of columns.
+
+    Returns
+    -------
+    array : ndarray of shape (n, width), dtype float64
+        A copy of the input.
+
+    Raises
+    ------
+    ValueError
+        If the input is not numeric or does not have shape ``(n, width)``.
+    """
+    array = _as_float_array(values, name, f"(n, {width})")
+    if array.ndim != 2 or array.shape[1] != width:
+        hint = f" (for a single sample use shape (1, {width}))" if array.ndim == 1 else ""
+        raise ValueError(
+            f"{name} must have shape (n, {width}); got shape {array.shape}{hint}."
+        )
+    return array
+
+
+def quaternion_to_rotation(q, quat_order="wxyz"):
+    """Build a SciPy rotation from quaternions in a given component order.
+
+    Parameters
+    ----------
+    q : array-like of shape (4,) or (n, 4)
+        Quaternion(s), not necessarily of unit norm (they are normalised).
+        Every value must be finite.
+    quat_order : {"wxyz", "xyzw"}, default="wxyz"
+        Component order of ``q``: scalar first (``"wxyz"``, NDI Aurora) or
+        scalar last (``"xyzw"``, SciPy, ROS).
+
+    Returns
+    -------
+    rotation : scipy.spatial.transform.Rotation
+        A single rotation for a ``(4,)`` input, otherwise a stack of ``n``
+        rotations.
+
+    Raises
+    ------
+    ValueError
+        If ``quat_order`` is unknown, ``q`` has the wrong shape, contains a
+        non-finite value, or has a zero-norm row.
+
+    Examples
+    --------
+    >>> from skcath.frames import quaternion_to_rotation
+    >>> quaternion_to_rotation([1.0, 0.0, 0.0, 0.0]).as_matrix().round(3)
+    array([[1., 0., 0.],
+           [0., 1., 0.],
+           [0., 0., 1.]])
+    """
+    quat_order = _check_quat_order(quat_order)
+    quats = _as_float_array(q, "q", "(4,) or (n, 4)")
+    single = quats.ndim == 1
+    if single:
+        quats = quats[None, :]
+    if quats.ndim != 2 or quats.shape[1] != 4:
+        raise ValueError(f"q must have shape (4,) or (n, 4); got shape {np.shape(q)}.")
+    bad = np.flatnonzero(~np.isfinite(quats).all(axis=1))
+    if bad.size:
+        raise ValueError(
+            f"q has a non-finite value at row {int(bad[0])}; "
+            "a rotation needs four finite components."
+        )
+    rotation = _rotations(quats, quat_order, "q", np.arange(quats.shape[0]))
+    return rotation[0] if single else rotation
+
+
+def tip_in_base_frame(
+    tip_position,
+    base_position,
+    base_orientation,
+    *,
+    quat_order="wxyz",
+    tip_offset=None,
+    tip_orientation=None,
+):
+    """Express the tip position in the frame at the base of the bending section.
+
+    Implements :math:`p = R_{WB}^{\\top} (p_{WT} - p_{WB})`, where W is the
+    tracker (world) frame, B the base sensor and T the tip. With
+    ``tip_offset`` the tip is the point at a fixed offset :math:`o` from the
+    tip sensor, given in the tip sensor frame:
+    :math:`p_{WT} = p_{WS} + R_{WS}\\, o`, with S the tip sensor.
+
+    Parameters
+    ----------
+    tip_position : array-like of shape (n, 3)
+        Tip sensor position in the tracker frame (mm).
+    base_position : array-like of shape (n, 3)
+        Base sensor position in the tracker frame (mm).
+    base_orientation : array-like of shape (n, 4)
+        Base sensor orientation in the tracker frame as quaternions in the
+        order ``quat_order``. They are normalised, so they need not be
+        exactly unit.
+    quat_order : {"wxyz", "xyzw"}, default="wxyz"
+        Component order of the quaternions: scalar first (``"wxyz"``, as NDI
+        Aurora exports write them) or scalar last (``"xyzw"``, SciPy, ROS).
+    tip_offset : array-like of shape (3,), default=None
+        Position of the real tip relative to the tip sensor, in the tip sensor
+        frame (mm). Requires ``tip_orientation``.
+    tip_orientation : array-like of shape (n, 4), default=None
+        Tip sensor orientation in the tracker frame, same quaternion order as
+        ``base_orientation``. Only used with ``tip_offset``; without it the
+        values are ignored (only the shape is checked).
+
+    Returns
+    -------
+    p : ndarray of shape (n, 3)
+        Tip position in the base frame B (mm). A row is NaN wherever any input
+        row has a non-finite value (a tracker dropout is written as NaN); the
+        other rows are unaffected.
+
+    Raises
+    ------
+    ValueError
+        If an array has the wrong shape or is not numeric, the row counts
+        differ, ``quat_order`` is unknown, ``tip_offset`` is given without
+        ``tip_orientation`` or is not three finite numbers, or a finite
+        quaternion has zero norm (the message names the argument and the row).
+
+    Notes
+    -----
+    The inputs are never modified.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skcath.frames import tip_in_base_frame
+    >>> # base sensor at (10, 0, 0), rotated by 90 degrees about z
+    >>> q = [[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]]
+    >>> p = tip_in_base_frame([[10.0, 80.0, 0.0]], [[10.0, 0.0, 0.0]], q)
+    >>> p.round(6) + 0.0
+    array([[80.,  0.,  0.]])
+    """
+    quat_order = _check_quat_order(quat_order)
+    p_wt = _as_float_rows(tip_position, "tip_position", 3)
+    p_wb = _as_float_rows(base_position, "base_position", 3)
+    q_wb = _as_float_rows(base_orientation, "base_orientation", 4)
+    used = {"tip_position": p_wt, "base_position": p_wb, "base_orientation": q_wb}
+
+    q_ws = None
+    if tip_orientation is not None:
+        q_ws = _as_float_rows(tip_orientation, "tip_orientation", 4)
+    offset = None
+    if tip_offset is not None:
+        if q_ws is None:
+            raise ValueError(
+                "tip_offset is given in the tip sensor frame, so tip_orientation "
+                "(n, 4) is required as well; got tip_orientation=None."
+            )
+        offset = _check_offset(tip_offset)
+        used["tip_orientation"] = q_ws
+
+    n = p_wt.shape[0]
+    given = dict(used, tip_orientation=q_ws) if q_ws is not None else used
+    for name, array in given.items():
+        if array.shape[0] != n:
+            raise ValueError(
+                f"{name} has {array.shape[0]} rows but tip_position has {n}; "
+                "all pose arrays must have one row per sample."
+            )
+
+    finite = np.ones(n, dtype=bool)
+    for array in used.values():
+        finite &= np.isfinite(array).all(axis=1)
+
+    result = np.full((n, 3), np.nan)
+    if not finite.any():
+        return result
+
+    rows = np.flatnonzero(finite)
+    r_wb = _rotations(q_wb[finite], quat_order, "base_orientation", rows)
+    tip = p_wt[finite]
+    if offset is not None:
+        r_ws = _rotations(q_ws[finite], quat_order, "tip_orientation", rows)
+        tip = tip + r_ws.apply(offset)
+    result[finite] = r_wb.inv().apply(tip - p_wb[finite])
+    return result
+
+
+def _rotations(quats, quat_order, name, rows):
+    """Build rotations from finite quaternion rows, normalising them.
+
+    Parameters
+    ----------
+    quats : ndarray of shape (m, 4)
+        Finite quaternion rows, in the order ``quat_order``.
+    quat_order : {"wxyz", "xyzw"}
+        Component order.
+    name : str
+        Parameter name used in error messages.
+    rows : ndarray of int, shape (m,)
+        Index, in the caller's array, of each row of ``quats``, so that an
+        error names the row the caller sees.
+
+    Returns
+    -------
+    rotation : scipy.spatial.transform.Rotation
+        Stack of ``m`` rotations.
+
+    Raises
+    ------
+    ValueError
+        If a row has (near) zero norm; the message names the first such row.
+    """
+    norms = np.linalg.norm(quats, axis=1)
+    zero = np.flatnonzero(norms < _MIN_QUAT_NORM)
+    if zero.size:
+        raise ValueError(
+            f"{name} has a zero-norm quaternion at row {int(rows[zero[0]])} "
+            f"({zero.size} such row(s) in total); a rotation needs a nonzero "
+            "quaternion. Mark missing samples with NaN instead."
+        )
+    unit = quats / norms[:, None]
+    return Rotation.from_quat(unit[:, _TO_XYZW[quat_order]])
+
+
+def _check_offset(tip_offset):
+    """Validate ``tip_offset`` as three finite numbers (mm).
+
+    Parameters
+    ----------
+    tip_offset : array-like of shape (3,)
+        Offset of the tip from the tip sensor, in the tip sensor frame (mm).
+
+    Returns
+    -------
+    offset : ndarray of shape (3,)
+        A float copy.
+
+    Raises
+    ------
+    ValueError
+        If it is not three finite numbers.
+    """
+    offset = _as_float_array(tip_offset, "tip_offset", "(3,)")
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise ValueError(
+            f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
+        )
+    return offset

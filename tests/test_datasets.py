@@ -1,0 +1,509 @@
+"""Tests of skcath.datasets: recording protocol, simulated runs, the benchmark.
+
+The default benchmark (204 runs, about 1.25 million samples) is generated once
+per test session into a temporary cache folder and shared by the tests that
+need it; everything else uses single runs or one-catheter benchmarks.
+"""
+
+import logging
+
+import joblib
+import numpy as np
+import pandas as pd
+import pytest
+from numpy.testing import assert_array_equal
+from scipy.spatial.transform import Rotation
+
+from skcath._validation import check_recordings
+from skcath.datasets import (
+    clear_data_home,
+    get_data_home,
+    make_benchmark,
+    sample_catheter,
+    shaft_settings,
+    simulate_run,
+)
+from skcath.datasets import _benchmark
+from skcath.datasets._protocol import (
+    min_jerk,
+    random_walk_trajectory,
+    run_protocol,
+    sweep_trajectory,
+)
+
+ID_COLUMNS = ["catheter", "setting", "run"]
+REF_COLUMNS = ["ref_x", "ref_y", "ref_z"]
+AMPLITUDE = 60.0
+
+
+@pytest.fixture(autouse=True)
+def _isolated_data_home(tmp_path, monkeypatch):
+    """Keep every cache this module may write out of the user's home."""
+    monkeypatch.setenv("SKCATH_DATA", str(tmp_path / "default_home"))
+
+
+def _assert_same_data(a, b):
+    """Assert that two simulated bunches hold identical recordings.
+
+    Parameters
+    ----------
+    a, b : sklearn.utils.Bunch
+        Outputs of :func:`simulate_run` or :func:`make_benchmark`.
+    """
+    pd.testing.assert_frame_equal(a.X, b.X, check_exact=True)
+    assert_array_equal(a.y, b.y)
+    assert_array_equal(a.y_true, b.y_true)
+    pd.testing.assert_frame_equal(a.sensors, b.sensors, check_exact=True)
+    pd.testing.assert_frame_equal(a.runs, b.runs, check_exact=True)
+    assert a.noise_floor == b.noise_floor
+
+
+def _plain_ids(X):
+    """``X`` with id and phase columns as strings and a fresh index."""
+    cols = [*ID_COLUMNS, "phase"]
+    return X.astype({c: str for c in cols}).reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------
+# protocol
+# ---------------------------------------------------------------------------
+def _rays(q):
+    """Split a sweep into its excursions from neutral.
+
+    Parameters
+    ----------
+    q : ndarray of shape (n, 2)
+        Sweep motor angles (deg).
+
+    Returns
+    -------
+    rays : list of ndarray of int
+        Sample indices of each maximal run of non-neutral samples.
+    """
+    moving = np.any(q != 0.0, axis=1).astype(int)
+    edges = np.flatnonzero(np.diff(np.r_[0, moving, 0]))
+    return [np.arange(start, stop) for start, stop in zip(edges[::2], edges[1::2])]
+
+
+def _check_sweep(q, amplitude=AMPLITUDE):
+    """Assert the structure of an 8-ray outward-and-return sweep from neutral."""
+    assert_array_equal(q[0], [0.0, 0.0])
+    assert_array_equal(q[-1], [0.0, 0.0])
+    rays = _rays(q)
+    assert len(rays) == 8
+    for k, idx in enumerate(rays):
+        # exactly neutral before and after each ray
+        assert_array_equal(q[idx[0] - 1], [0.0, 0.0])
+        assert_array_equal(q[idx[-1] + 1], [0.0, 0.0])
+        rho = np.hypot(q[idx, 0], q[idx, 1])
+        psi = np.deg2rad(45.0 * k)
+        # every sample lies on the ray at 45 k degrees
+        assert np.allclose(q[idx], rho[:, None] * [np.cos(psi), np.sin(psi)], atol=1e-9)
+        assert rho.max() == pytest.approx(amplitude, abs=1e-9)
+        peak = np.flatnonzero(np.isclose(rho, amplitude, atol=1e-9))
+        # out, dwell at the amplitude, back
+        assert_array_equal(np.diff(peak), 1)
+        assert np.all(np.diff(rho[: peak[0] + 1]) > 0)
+        assert np.all(np.diff(rho[peak[-1] :]) < 0)
+        assert len(peak) >= 10
+
+
+def test_min_jerk_profile():
+    for n in (1, 2, 7, 250):
+        s = min_jerk(n)
+        assert s.shape == (n,)
+        assert s[-1] == 1.0
+        assert np.all(s > 0)
+        assert np.all(np.diff(s) > 0)
+    s = min_jerk(200)
+    tau = np.arange(1, 201) / 200
+    # symmetric about the midpoint, with zero slope at both ends
+    assert np.allclose(s[:-1] + s[::-1][1:], 1.0, atol=1e-12)
+    assert s[0] < 1e-5 and 1 - s[-2] < 1e-5
+    assert s[99] == pytest.approx(0.5)
+    assert np.all(np.abs(np.diff(s)) <= 1.875 / 200 + 1e-12)  # peak speed 15/8
+    assert np.allclose(s, 10 * tau**3 - 15 * tau**4 + 6 * tau**5)
+
+
+def test_sweep_trajectory_rays():
+    q = sweep_trajectory()
+    _check_sweep(q)
+    # 30 rest samples, then 8 x (250 out + 15 dwell + 250 back + 25 dwell) at 2.4 deg/s
+    assert len(q) == 30 + 8 * (250 + 15 + 250 + 25)
+    q = sweep_trajectory(amplitude_deg=40.0, n_rays=8)
+    _check_sweep(q, amplitude=40.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_run_protocol_sweep_then_random_walk(seed):
+    q, n_sweep = run_protocol(np.random.default_rng(seed))
+    assert 6000 <= len(q) <= 6300
+    assert q.shape == (len(q), 2)
+    _check_sweep(q[:n_sweep])
+    motion = q[n_sweep:]
+    rho = np.hypot(motion[:, 0], motion[:, 1])
+    assert rho.max() <= AMPLITUDE + 1e-9
+    assert rho.max() > 0.8 * AMPLITUDE  # the walk explores the workspace
+    # the walk starts from neutral and moves continuously
+    assert np.hypot(*motion[0]) < 1.0
+    assert np.abs(np.diff(q, axis=0)).max() < 20.0
+
+
+def test_run_protocol_lengths_cover_range():
+    lengths = [len(run_protocol(np.random.default_rng(s))[0]) for s in range(40)]
+    assert min(lengths) >= 6000 and max(lengths) <= 6300
+    assert len(set(lengths)) > 20
+
+
+def test_run_protocol_rejects_short_runs():
+    with pytest.raises(ValueError, match="n_samples_range"):
+        run_protocol(np.random.default_rng(0), n_samples_range=(4500, 4600))
+
+
+@pytest.mark.parametrize("n_samples", [100, 101, 137, 1000, 1777, 2100])
+def test_random_walk_length_exact_and_inside_disk(n_samples):
+    rng = np.random.default_rng(n_samples)
+    q = random_walk_trajectory(rng, n_samples, radius_deg=AMPLITUDE, start=(10.0, -5.0))
+    assert q.shape == (n_samples, 2)
+    assert np.hypot(q[:, 0], q[:, 1]).max() <= AMPLITUDE + 1e-9
+    assert np.all(np.isfinite(q))
+
+
+def test_random_walk_rejects_too_few_samples():
+    with pytest.raises(ValueError, match="n_samples"):
+        random_walk_trajectory(np.random.default_rng(0), 99)
+
+
+# ---------------------------------------------------------------------------
+# one simulated run
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def run0():
+    """One run with the default catheter draw, setting and mechanism, seed 0."""
+    return simulate_run(random_state=0)
+
+
+def test_simulate_run_is_deterministic(run0):
+    _assert_same_data(run0, simulate_run(random_state=0))
+    _assert_same_data(
+        simulate_run(random_state=np.random.default_rng(5)),
+        simulate_run(random_state=np.random.default_rng(5)),
+    )
+
+
+def test_simulate_run_seeds_differ(run0):
+    other = simulate_run(random_state=1)
+    n = min(len(run0.y), len(other.y))
+    assert not np.allclose(run0.y_true[:n], other.y_true[:n])
+    assert not np.array_equal(run0.X["tau1"].to_numpy()[:n], other.X["tau1"].to_numpy()[:n])
+
+
+def test_simulate_run_passes_format_checks(run0):
+    X, y = check_recordings(run0.X, run0.y)
+    assert len(X) == len(y) == run0.runs.loc[0, "n_samples"]
+    assert 6000 <= len(X) <= 6300
+    assert y.shape == run0.y_true.shape == (len(X), 3)
+    assert len(run0.sensors) == len(X)
+    assert set(X["run"]) == {"run-0"}
+    assert np.all(np.isfinite(run0.y)) and np.all(np.isfinite(run0.y_true))
+    # torques are quantised to the drive's 0.5 N mm step
+    tau = X[["tau1", "tau2"]].to_numpy()
+    assert_array_equal(tau / 0.5, np.round(tau / 0.5))
+
+
+def test_reference_columns_are_the_sweep_targets(run0):
+    X = run0.X
+    sweep = (X["phase"] == "sweep").to_numpy()
+    assert sweep.sum() == run0.runs.loc[0, "n_sweep"]
+    assert np.all(sweep[: sweep.sum()]) and not np.any(sweep[sweep.sum() :])
+    ref = X[REF_COLUMNS].to_numpy()
+    assert_array_equal(ref[sweep], run0.y[sweep])
+    assert np.all(np.isnan(ref[~sweep]))
+
+
+def test_simulate_run_accepts_setting_objects_and_catheters():
+    cat = sample_catheter(3, "C7")
+    setting = shaft_settings()[12]
+    a = simulate_run(cat, setting, random_state=2, run="r")
+    b = simulate_run(cat, setting.name, random_state=2, run="r")
+    _assert_same_data(a, b)
+    assert a.runs.loc[0, "catheter"] == "C7"
+    assert a.runs.loc[0, "setting"] == setting.name
+    assert a.runs.loc[0, "bend_level"] == setting.level == "high"
+
+
+def test_noise_free_tip_stays_within_reach():
+    # Back in the kinematic frame, the tip is never farther than section + tip.
+    cat = sample_catheter(11, "C1")
+    data = simulate_run(cat, "S09", random_state=4, field=False)
+    p_k = Rotation.from_rotvec(cat.mount_rotvec).inv().apply(data.y_true) + cat.mount_position
+    reach = np.linalg.norm(p_k, axis=1)
+    assert reach.max() <= cat.length + cat.tip_length + 1e-9
+    assert reach.min() > 0.5 * (cat.length + cat.tip_length)
+
+
+@pytest.mark.parametrize("dropout_rate", [0.05, 0.3])
+def test_dropouts_give_nan_targets(run0, dropout_rate):
+    data = simulate_run(random_state=0, dropout_rate=dropout_rate)
+    lost = np.isnan(data.y).any(axis=1)
+    assert np.all(np.isnan(data.y[lost]))
+    assert abs(lost.mean() - dropout_rate) < 0.03
+    tip_cols = ["tip_px", "tip_py", "tip_pz", "tip_qw", "tip_qx", "tip_qy", "tip_qz"]
+    assert_array_equal(data.sensors[tip_cols].isna().all(axis=1).to_numpy(), lost)
+    sweep = (data.X["phase"] == "sweep").to_numpy()
+    ref = data.X[REF_COLUMNS].to_numpy()
+    assert np.all(np.isnan(ref[lost & sweep]))
+    assert_array_equal(ref[sweep & ~lost], data.y[sweep & ~lost])
+    check_recordings(data.X, data.y)
+    # a dropout only hides samples: the same seed gives the same motion and tip
+    assert_array_equal(data.y_true, run0.y_true)
+    pd.testing.assert_frame_equal(
+        data.X.drop(columns=REF_COLUMNS), run0.X.drop(columns=REF_COLUMNS), check_exact=True
+    )
+    assert_array_equal(data.y[~lost], run0.y[~lost])
+    assert np.isfinite(data.noise_floor)
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"setting": "S17"}, "setting"),
+        ({"setting": "straight"}, "setting"),
+        ({"random_state": -1}, "random_state"),
+        ({"random_state": 1.5}, "random_state"),
+        ({"random_state": "0"}, "random_state"),
+        ({"mechanism": "x"}, "mechanism"),
+        ({"dropout_rate": 1.0}, "dropout_rate"),
+        ({"dropout_rate": -0.1}, "dropout_rate"),
+    ],
+)
+def test_simulate_run_rejects_bad_arguments(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        simulate_run(**kwargs)
+
+
+# ---------------------------------------------------------------------------
+# noise floor
+# ---------------------------------------------------------------------------
+def test_noise_floor_is_motion_rms_error(run0):
+    motion = (run0.X["phase"] == "motion").to_numpy()
+    err = np.linalg.norm(run0.y[motion] - run0.y_true[motion], axis=1)
+    rms = np.sqrt(np.mean(err**2))
+    assert run0.noise_floor == pytest.approx(rms, rel=1e-12)
+    assert run0.runs.loc[0, "noise_floor_mm"] == pytest.approx(rms, rel=1e-12)
+    assert 0.1 < run0.noise_floor < 1.5
+    # the tracker makes the measured tip differ from the true one, by < a few mm
+    all_err = np.linalg.norm(run0.y - run0.y_true, axis=1)
+    assert np.all(all_err > 0)
+    assert all_err.max() < 4.0
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_undistorted_noise_floor_matches_sensor_jitter(seed):
+    # Without field distortion the floor follows from the sensor figures:
+    # 0.15 mm per coordinate on both sensors, and the base orientation jitter
+    # (0.2 deg per axis) swinging the tip vector: E|w x p|^2 = 2 sigma^2 |p|^2.
+    data = simulate_run(random_state=seed, field=False)
+    motion = (data.X["phase"] == "motion").to_numpy()
+    mean_sq_reach = np.mean(np.sum(data.y_true[motion] ** 2, axis=1))
+    predicted = np.sqrt(2 * 3 * 0.15**2 + 2 * np.deg2rad(0.2) ** 2 * mean_sq_reach)
+    assert data.noise_floor == pytest.approx(predicted, rel=0.1)
+
+
+# ---------------------------------------------------------------------------
+# the default benchmark, generated once per session
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def benchmark_home(tmp_path_factory):
+    """Cache folder that holds the session's default benchmark."""
+    return tmp_path_factory.mktemp("skcath_benchmark_cache")
+
+
+@pytest.fixture(scope="session")
+def default_benchmark(benchmark_home):
+    """The default benchmark (4 catheters x 17 settings x 3 runs), cached."""
+    return make_benchmark(cache=True, data_home=benchmark_home)
+
+
+@pytest.fixture(scope="module")
+def small_benchmark():
+    """One catheter in all 17 settings, one run each, seed 0, not cached."""
+    return make_benchmark(n_catheters=1, n_runs=1, cache=False)
+
+
+def test_default_benchmark_layout(default_benchmark):
+    data = default_benchmark
+    X, runs = data.X, data.runs
+    assert len(runs) == 204
+    assert runs["run"].is_unique
+    assert sorted(X["catheter"].unique()) == ["C1", "C2", "C3", "C4"]
+    assert sorted(X["setting"].unique()) == [f"S{k:02d}" for k in range(17)]
+    assert X["run"].nunique() == 204
+    per_cell = runs.groupby(["catheter", "setting"]).size()
+    assert len(per_cell) == 4 * 17 and (per_cell == 3).all()
+    assert sorted(runs["repeat"].unique()) == [1, 2, 3]
+    assert runs["bend_level"].value_counts().to_dict() == {"low": 96, "high": 96, "straight": 12}
+    sizes = X.groupby("run", observed=True).size()
+    assert sizes.between(6000, 6300).all()
+    assert set(data.catheters) == {"C1", "C2", "C3", "C4"}
+    assert data.mechanism == "play"
+    assert "204 runs" in data.DESCR
+
+
+def test_runs_table_matches_recordings(default_benchmark):
+    X, runs = default_benchmark.X, default_benchmark.runs
+    grouped = X.groupby("run", observed=True, sort=False)
+    first = grouped[["catheter", "setting"]].first().astype(str)
+    table = runs.set_index("run")
+    assert list(first.index) == list(runs["run"])  # same run order
+    assert_array_equal(first["catheter"], table["catheter"])
+    assert_array_equal(first["setting"], table["setting"])
+    assert_array_equal(grouped.size(), table["n_samples"])
+    n_sweep = (X["phase"] == "sweep").groupby(X["run"], observed=True, sort=False).sum()
+    assert_array_equal(n_sweep, table["n_sweep"])
+    assert len(X) == runs["n_samples"].sum() == len(default_benchmark.y)
+    settings = {s.name: s for s in shaft_settings()}
+    for _, row in runs.iterrows():
+        assert row["run"] == f"{row['catheter']}-{row['setting']}-R{row['repeat']}"
+        assert row["bend_level"] == settings[row["setting"]].level
+        assert row["shaft_wrap_deg"] == settings[row["setting"]].bend_deg
+    assert default_benchmark.noise_floor == pytest.approx(runs["noise_floor_mm"].mean())
+    assert runs["noise_floor_mm"].between(0.1, 1.5).all()
+
+
+def test_default_benchmark_passes_format_checks(default_benchmark):
+    X, y = check_recordings(default_benchmark.X, default_benchmark.y)
+    assert len(X) == len(y) > 1_200_000
+
+
+def test_default_benchmark_ranges(default_benchmark):
+    X, y = default_benchmark.X, default_benchmark.y
+    run = X["run"].to_numpy()
+    tip = pd.DataFrame(y, columns=["x", "y", "z"]).groupby(run)
+    spans = tip.max() - tip.min()
+    typical = spans.median()
+    assert typical.between(25.0, 60.0).all(), typical.to_dict()
+    rho = pd.Series(np.hypot(X["q1"], X["q2"]).to_numpy()).groupby(run).max()
+    assert rho.max() <= AMPLITUDE + 1e-9
+    assert (rho >= 55.0).all()
+    assert np.isfinite(X[["tau1", "tau2"]].to_numpy()).all()
+    assert np.isfinite(default_benchmark.y_true).all()
+
+
+def test_cache_reload_does_not_resimulate(default_benchmark, benchmark_home, monkeypatch):
+    files = list(benchmark_home.glob("benchmark-play-*.joblib"))
+    assert len(files) == 1
+
+    def _no_simulation(*args, **kwargs):
+        raise AssertionError("make_benchmark re-simulated a cached benchmark")
+
+    monkeypatch.setattr(_benchmark, "simulate_runs", _no_simulation)
+    again = make_benchmark(cache=True, data_home=benchmark_home)
+    _assert_same_data(again, default_benchmark)
+    assert again.catheters == default_benchmark.catheters
+
+
+def test_small_benchmark_is_subset_of_default(default_benchmark, small_benchmark):
+    small, full = small_benchmark, default_benchmark
+    ids = list(small.runs["run"])
+    assert ids == [f"C1-S{k:02d}-R1" for k in range(17)]
+    rows = full.X["run"].isin(ids).to_numpy()
+    pd.testing.assert_frame_equal(_plain_ids(full.X[rows]), _plain_ids(small.X), check_exact=True)
+    assert_array_equal(full.y[rows], small.y)
+    assert_array_equal(full.y_true[rows], small.y_true)
+    pd.testing.assert_frame_equal(
+        full.sensors[rows].reset_index(drop=True), small.sensors, check_exact=True
+    )
+    sub_runs = full.runs[full.runs["run"].isin(ids)].reset_index(drop=True)
+    pd.testing.assert_frame_equal(sub_runs, small.runs, check_exact=True)
+    assert small.catheters["C1"] == full.catheters["C1"]
+
+
+def test_random_state_changes_benchmark(small_benchmark):
+    other = make_benchmark(n_catheters=1, n_runs=1, random_state=1, cache=False)
+    assert list(other.runs["run"]) == list(small_benchmark.runs["run"])
+    assert other.catheters["C1"] != small_benchmark.catheters["C1"]
+    n = min(len(other.y), len(small_benchmark.y))
+    assert not np.allclose(other.y_true[:n], small_benchmark.y_true[:n])
+    same = make_benchmark(n_catheters=1, n_runs=1, random_state=0, cache=False)
+    _assert_same_data(same, small_benchmark)
+
+
+def _count_simulations(monkeypatch):
+    """Wrap ``simulate_runs`` in the benchmark module and count its calls."""
+    calls = []
+    original = _benchmark.simulate_runs
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(_benchmark, "simulate_runs", counting)
+    return calls
+
+
+def test_small_benchmark_cache_round_trip(small_benchmark, tmp_path, monkeypatch):
+    calls = _count_simulations(monkeypatch)
+    first = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    second = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    assert len(calls) == 1
+    _assert_same_data(first, small_benchmark)
+    _assert_same_data(second, small_benchmark)
+    # other arguments are cached separately
+    make_benchmark(n_catheters=1, n_runs=1, mechanism="bouc_wen", data_home=tmp_path)
+    assert len(calls) == 2
+    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+
+
+@pytest.mark.parametrize("content", ["garbage", "foreign"])
+def test_corrupt_cache_is_regenerated(small_benchmark, tmp_path, monkeypatch, caplog, content):
+    make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    (path,) = tmp_path.glob("benchmark-play-*.joblib")
+    if content == "garbage":
+        path.write_bytes(b"not a joblib file")
+    else:  # a readable file written for other arguments
+        joblib.dump({"key": {"version": "0"}, "X": None}, path)
+    calls = _count_simulations(monkeypatch)
+    with caplog.at_level(logging.WARNING, logger="skcath"):
+        data = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    assert len(calls) == 1
+    _assert_same_data(data, small_benchmark)
+    if content == "garbage":
+        assert any(path.name in rec.getMessage() for rec in caplog.records)
+    # the cache file was rewritten and now loads without simulating
+    _assert_same_data(joblib.load(path), small_benchmark)
+    make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    assert len(calls) == 1
+
+
+def test_no_cache_writes_nothing(tmp_path):
+    make_benchmark(n_catheters=1, n_runs=1, cache=False, data_home=tmp_path / "unused")
+    assert not (tmp_path / "unused").exists()
+
+
+def test_data_home_from_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("SKCATH_DATA", str(tmp_path / "env_home"))
+    home = get_data_home()
+    assert home == tmp_path / "env_home" and home.is_dir()
+    assert get_data_home(tmp_path / "explicit") == tmp_path / "explicit"
+    (home / "file").write_text("x")
+    clear_data_home()
+    assert not home.exists()
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"n_catheters": 0}, "n_catheters"),
+        ({"n_catheters": 1.5}, "n_catheters"),
+        ({"n_catheters": True}, "n_catheters"),
+        ({"n_runs": 0}, "n_runs"),
+        ({"mechanism": "x"}, "mechanism"),
+        ({"random_state": -1}, "random_state"),
+        ({"random_state": None}, "random_state"),
+    ],
+)
+def test_make_benchmark_rejects_bad_arguments(kwargs, name, tmp_path):
+    with pytest.raises(ValueError, match=name):
+        make_benchmark(**{"n_catheters": 1, "n_runs": 1, **kwargs}, data_home=tmp_path)
+    assert not list(tmp_path.iterdir())
