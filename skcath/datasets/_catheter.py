@@ -120,8 +120,9 @@ class Catheter:
         Motor offsets of the two axes (degrees).
     mu : float
         Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
-    play_w0, play_growth_scale, play_asym : float
-        Play width at zero load (deg), scale of its growth with load, and
+    play_w0, play_growth_base, play_growth_scale, play_asym : float
+        Play width at zero load (deg); growth of the width with load,
+        ``base + scale (1 - exp(-mu Theta))`` (deg/deg); and the
         unloading/loading width ratio.
     bw_kappa : float
         Bouc-Wen sharpness.
@@ -130,6 +131,32 @@ class Catheter:
         (gain, s) of the rate-dependent mechanism.
     dead_zone0, dead_zone_growth : float
         Dead-zone width at zero wrap (deg) and its growth (deg per rad of wrap).
+    route_a1, route_a3, route_b3, route_shift : float
+        Direction-dependent tendon routing: the bend plane of a bend in
+        direction ``delta`` is turned by ``A1 cos(delta - zeta1) + A3
+        cos(3 delta - zeta3)`` (rad) and its magnitude scaled by ``1 + B3
+        cos(3 delta - xi3)``; ``A1`` grows by ``route_shift`` per rad of
+        shaft wrap, ``A3`` and ``B3`` by a factor ``1 + Theta / pi``.
+    route_phases : ndarray of shape (3,)
+        Phases ``zeta1`` (relative to the shaft-bend direction when bent),
+        ``zeta3`` and ``xi3`` (rad).
+    windup : float
+        Largest azimuth lag of the bend plane from torsional wind-up of the
+        shaft (rad), grown by ``1 + Theta / pi`` in a bent shaft.
+    cross_load : float
+        Share of the other pair's load that adds to a pair's friction (the
+        tendons share the sheath): play width ``w0 + a (|u_i| + c |u_j|)``.
+    slow_creep_gain, slow_creep_tau : float
+        Viscoelastic creep of the tendons under load, common to all
+        mechanisms: the effective input relaxes by ``gain`` times its
+        low-passed value (time constant ``tau``, s).
+    tip_lag : float
+        Time constant of the first-order lag between the tendon input and the
+        bending section (tendon elasticity and damping of the section), s.
+    wrap_routing : float
+        How much more the tendon pair whose plane contains the shaft bend is
+        wrapped than the other pair: the wrap of axis ``i`` is
+        ``Theta (1 + wrap_routing cos 2(beta - az_i))``.
     offset_shift : float
         Motor offset per rad of wrap in the shaft-bend direction (deg/rad).
     gain_shift, gain_loss : float
@@ -163,6 +190,7 @@ class Catheter:
     offsets: np.ndarray
     mu: float
     play_w0: float
+    play_growth_base: float
     play_growth_scale: float
     play_asym: float
     bw_kappa: float
@@ -172,6 +200,17 @@ class Catheter:
     creep_tau: float
     dead_zone0: float
     dead_zone_growth: float
+    route_a1: float
+    route_a3: float
+    route_b3: float
+    route_shift: float
+    route_phases: np.ndarray
+    windup: float
+    cross_load: float
+    slow_creep_gain: float
+    slow_creep_tau: float
+    tip_lag: float
+    wrap_routing: float
     offset_shift: float
     gain_shift: float
     gain_loss: float
@@ -193,7 +232,7 @@ class Catheter:
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
 
 
-def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=1.4):
+def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
     """Draw one catheter unit of the family.
 
     Parameters
@@ -212,7 +251,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=1.4):
     rng = np.random.default_rng(random_state)
     u = rng.uniform
     n = rng.normal
-    gains = np.deg2rad(gain_deg_per_deg) * (1.0 + n(0.0, 0.06, size=(2, 2)))
+    gains = np.deg2rad(gain_deg_per_deg) * (1.0 + n(0.0, 0.2, size=(2, 2)))
     tilt_axis = n(size=2)
     tilt_axis /= np.linalg.norm(tilt_axis)
     tilt = np.deg2rad(u(25.0, 35.0))
@@ -224,31 +263,43 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=1.4):
         length=u(38.0, 46.0),
         tip_length=u(9.0, 12.0),
         split_fraction=u(0.4, 0.6),
-        split_bias=n(0.0, 0.08),
+        split_bias=n(0.0, 0.12),
         split_slope=n(0.12, 0.04),
-        max_bend=np.deg2rad(u(110.0, 140.0)),
-        twist=n(0.0, 0.08),
+        max_bend=np.deg2rad(u(110.0, 150.0)),
+        twist=n(0.0, 0.15),
         coupling=n(0.0, 0.06, size=2),
         rest_bend=np.deg2rad(n(0.0, 2.0, size=2)),
         gains=gains,
         offsets=n(0.0, 1.5, size=2),
         mu=u(0.10, 0.20),
-        play_w0=u(1.5, 2.5),
-        play_growth_scale=u(0.18, 0.24),
+        play_w0=u(3.0, 5.0),
+        play_growth_base=u(0.03, 0.06),
+        play_growth_scale=u(0.3, 0.45),
         play_asym=u(0.6, 0.9),
         bw_kappa=u(0.3, 0.6),
         rate_gain=u(0.3, 0.6),
         rate_speed=u(5.0, 15.0),
         creep_gain=u(0.04, 0.08),
         creep_tau=u(3.0, 8.0),
-        dead_zone0=u(1.0, 2.0),
-        dead_zone_growth=u(0.5, 1.0),
+        dead_zone0=u(2.0, 4.0),
+        dead_zone_growth=u(1.0, 2.0),
+        wrap_routing=u(0.3, 0.6),
+        route_a1=abs(n(0.0, 0.06)),
+        route_a3=n(0.0, 0.15),
+        route_b3=n(0.0, 0.15),
+        route_shift=u(0.07, 0.11),
+        route_phases=u(-np.pi, np.pi, size=3),
+        windup=np.deg2rad(u(2.0, 4.0)),
+        cross_load=u(0.2, 0.4),
+        slow_creep_gain=u(0.06, 0.12),
+        slow_creep_tau=u(10.0, 30.0),
+        tip_lag=u(0.1, 0.25),
         offset_shift=u(1.0, 2.5),
-        gain_shift=u(0.03, 0.06),
+        gain_shift=u(0.06, 0.10),
         gain_loss=u(0.3, 0.5),
         rest_shift=u(0.02, 0.05),
         coupling_shift=u(0.01, 0.03),
-        twist_shift=u(0.01, 0.03),
+        twist_shift=u(0.02, 0.05),
         pulley_radius=u(9.0, 11.0),
         pretension=u(1.5, 2.5),
         stiffness=u(0.12, 0.18),
@@ -257,7 +308,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=1.4):
         torque_noise=3.0,
         torque_step=0.5,
         mount_rotvec=mount.as_rotvec(),
-        mount_position=np.array([n(0.0, 1.0), n(0.0, 1.0), -u(2.0, 6.0)]),
+        mount_position=np.array([n(0.0, 1.5), n(0.0, 1.5), -u(6.0, 14.0)]),
     )
 
 
@@ -267,8 +318,10 @@ def configure(catheter, setting):
     Physical routes of the shaft configuration (``Theta`` = capstan wrap in
     rad, ``b`` = unit shaft-bend direction):
 
-    * play growth ``a = scale (1 - exp(-mu Theta))`` (capstan friction) and a
-      dead zone ``d0 + d1 Theta`` (slack of the tendon pair);
+    * each tendon pair has its own wrap ``Theta_i = Theta (1 + r cos
+      2(beta - az_i))``: the pair bent in its own plane rubs harder;
+    * play growth ``a_i = base + scale (1 - exp(-mu Theta_i))`` (capstan friction)
+      and a dead zone ``d0 + d1 Theta_i`` (slack of the tendon pair);
     * gains: capstan loss ``1 - loss (1 - exp(-mu Theta))`` for all tendons,
       and a path-length change ``1 + shift Theta cos(beta - az_tendon)`` for
       the tendon at azimuth ``az_tendon``;
@@ -284,8 +337,10 @@ def configure(catheter, setting):
     theta = setting.wrap
     bvec = setting.bend_vector()
     beta = np.arctan2(bvec[1], bvec[0])
-    capstan = 1.0 - np.exp(-c.mu * theta)
     bent = float(np.any(bvec != 0))
+    axis_wrap = theta * (1.0 + c.wrap_routing * bent * np.cos(2.0 * (beta - TENDON_AZIMUTHS[:, 0])))
+    axis_capstan = 1.0 - np.exp(-c.mu * axis_wrap)
+    capstan = axis_capstan.mean()
     path = 1.0 + c.gain_shift * theta * bent * np.cos(beta - TENDON_AZIMUTHS)
     gains = c.gains * (1.0 - c.gain_loss * capstan) * path
     sin2, cos2 = np.sin(2 * beta) * bent, np.cos(2 * beta) * bent
@@ -295,8 +350,17 @@ def configure(catheter, setting):
         "rest_bend": c.rest_bend + c.rest_shift * theta * bvec,
         "coupling": c.coupling + c.coupling_shift * theta * np.array([sin2, cos2]),
         "twist": c.twist + c.twist_shift * theta * np.sin(beta) * bent,
+        "routing": np.array([
+            c.route_a1 + c.route_shift * theta * bent,
+            c.route_phases[0] + beta * bent,
+            c.route_a3 * (1.0 + theta * bent / np.pi),
+            c.route_phases[1],
+            c.route_b3 * (1.0 + theta * bent / np.pi),
+            c.route_phases[2],
+        ]),
+        "windup": c.windup * (1.0 + theta * bent / np.pi),
         "w0": c.play_w0,
-        "growth": c.play_growth_scale * capstan,
-        "dead_zone": c.dead_zone0 + c.dead_zone_growth * theta,
-        "capstan_exponent": c.mu * theta,
+        "growth": c.play_growth_base + c.play_growth_scale * axis_capstan,
+        "dead_zone": c.dead_zone0 + c.dead_zone_growth * axis_wrap,
+        "capstan_exponent": c.mu * axis_wrap,
     }

@@ -8,41 +8,57 @@ released), which sets the capstan factor of the drive torque.
 
 All mechanisms share a load-dependent width
 
-    w(u) = w0 + a |u|,
+    w(u) = w0 + a (|u_i| + c |u_j|),
 
-where ``a`` grows with the capstan wrap of the shaft (``1 - exp(-mu Theta)``),
+where ``c`` is the share of the other pair's load ``u_j`` that presses on
+the sheath, and ``a`` grows with the capstan wrap of the shaft (``1 - exp(-mu Theta)``),
 so loops widen with shaft bend and with load. The time loop is vectorised
 across runs and axes: arrays have shape ``(n_steps, n_runs, 2)``.
 """
 
 import numpy as np
 
-__all__ = ["MECHANISMS", "simulate_transmission"]
+__all__ = ["MECHANISMS", "simulate_transmission", "torsional_windup"]
 
 MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 
 
 def _width(u, params):
-    return params["w0"] + params["growth"] * np.abs(u)
+    load = np.abs(u)
+    return params["w0"] + params["growth"] * (load + params["cross_load"] * load[:, ::-1])
+
+
+#: Width multipliers of the play elements of the distributed-friction model:
+#: friction acts all along the sheath, so some stretches of tendon slip early
+#: and others only after a long travel.
+PLAY_ELEMENTS = np.geomspace(0.3, 8.0, 6)
 
 
 def _play(u, dt, params):
-    """Load-dependent play operator (Coulomb friction and an elastic tendon).
+    """Load-dependent play operators in parallel (distributed Coulomb friction).
 
-    ``z_k = clip(z_{k-1}, u_k - w(u_k), u_k + r w(u_k))``: the output lags the
-    input by ``w`` while loading and by ``r w`` while unloading.
+    Each element ``m`` follows ``z_k = clip(z_{k-1}, u_k - m w(u_k), u_k + r m w(u_k))``
+    (it lags the input by ``m w`` while loading and by ``r m w`` while
+    unloading); the output is the mean of the elements, with multipliers
+    ``m`` in :data:`PLAY_ELEMENTS`. Wide elements slide only after long
+    excursions and then keep a memory of them; where ``m a (1 + c) >= 1`` an
+    element never slides at all (a stretch of tendon held by static friction
+    for the whole run), which lowers the transmission ratio of a strongly
+    bent shaft. The friction
+    utilisation ``phi`` is the mean over elements of where each sits
+    between its two branches.
     """
     n = u.shape[0]
     r = params["asym"]
+    m = PLAY_ELEMENTS[:, None, None]
     v = np.empty_like(u)
     phi = np.empty_like(u)
-    z = u[0].copy()
+    z = np.repeat(u[:1], len(PLAY_ELEMENTS), axis=0)
     for k in range(n):
-        w = _width(u[k], params)
+        w = m * _width(u[k], params)
         z = np.clip(z, u[k] - w, u[k] + r * w)
-        lag = u[k] - z
-        v[k] = z
-        phi[k] = (2.0 * lag + (r - 1.0) * w) / ((1.0 + r) * w)
+        v[k] = z.mean(axis=0)
+        phi[k] = ((2.0 * (u[k] - z) + (r - 1.0) * w) / ((1.0 + r) * w)).mean(axis=0)
     return v, phi
 
 
@@ -57,24 +73,27 @@ def _bouc_wen(u, dt, params):
 
     so the lag saturates at ``w`` while loading and at ``-r w`` while
     unloading (as the play operator), and ``kappa`` sets how sharply the
-    branch turns after a reversal.
+    branch turns after a reversal. As for the play, friction is distributed:
+    elements of widths ``m w`` (:data:`PLAY_ELEMENTS`) act in parallel and the
+    output is their mean.
     """
     n = u.shape[0]
+    m = PLAY_ELEMENTS[:, None, None]
     r = params["asym"]
     delta = (1.0 - r) / (1.0 + r)
     kappa = params["kappa"]
     v = np.empty_like(u)
     phi = np.empty_like(u)
-    h = np.zeros_like(u[0])
+    h = np.zeros((len(PLAY_ELEMENTS), *u[0].shape))
     u_prev = u[0]
     for k in range(n):
         du = u[k] - u_prev
         u_prev = u[k]
-        w = _width(u[k], params) * (0.5 + 0.5 * r)
+        w = m * _width(u[k], params) * (0.5 + 0.5 * r)
         adu = np.abs(du)
         h = (h + du + delta * adu - (kappa / w) * du * np.abs(h)) / (1.0 + ((1.0 - kappa) / w) * adu)
-        v[k] = u[k] - h
-        phi[k] = np.clip(h / w - delta, -1.0, 1.0)
+        v[k] = u[k] - h.mean(axis=0)
+        phi[k] = np.clip(h / w - delta, -1.0, 1.0).mean(axis=0)
     return v, phi
 
 
@@ -88,25 +107,30 @@ def _dahl_creep(u, dt, params):
 
     The tendon creeps under load: ``c`` relaxes towards ``kappa_c (u - h)``
     with time constant ``tau_c``, so a slow sweep and a fast move reach the
-    same motor angle with different outputs. Output ``v = u - h - c``.
+    same motor angle with different outputs. Output ``v = u - h - c``, with
+    ``h`` the mean lag of distributed elements of widths ``m w``
+    (:data:`PLAY_ELEMENTS`), as for the play.
     """
     n = u.shape[0]
+    m = PLAY_ELEMENTS[:, None, None]
     rate_gain, rate_speed = params["rate_gain"], params["rate_speed"]
     creep_gain = params["creep_gain"]
     relax = 1.0 - np.exp(-dt / params["creep_tau"])
     v = np.empty_like(u)
     phi = np.empty_like(u)
-    h = np.zeros_like(u[0])
+    h = np.zeros((len(PLAY_ELEMENTS), *u[0].shape))
     c = np.zeros_like(u[0])
     u_prev = u[0]
     for k in range(n):
         du = u[k] - u_prev
         u_prev = u[k]
-        w = _width(u[k], params) * (1.0 + rate_gain * np.tanh(np.abs(du) / (dt * rate_speed)))
+        w = m * _width(u[k], params)
+        w = w * (1.0 + rate_gain * np.tanh(np.abs(du) / (dt * rate_speed)))
         h = (h + du) / (1.0 + np.abs(du) / w)
-        c = c + (creep_gain * (u[k] - h) - c) * relax
-        v[k] = u[k] - h - c
-        phi[k] = np.clip(h / w, -1.0, 1.0)
+        lag = h.mean(axis=0)
+        c = c + (creep_gain * (u[k] - lag) - c) * relax
+        v[k] = u[k] - lag - c
+        phi[k] = np.clip(h / w, -1.0, 1.0).mean(axis=0)
     return v, phi
 
 
@@ -124,7 +148,7 @@ def simulate_transmission(u, dt, params, mechanism="play"):
     dt : float
         Sampling period (s).
     params : dict of ndarray of shape (n_runs, 2)
-        ``w0`` (deg), ``growth`` (deg/deg), ``asym`` (unloading/loading width
+        ``w0`` (deg), ``growth`` (deg/deg), ``cross_load``, ``asym`` (unloading/loading width
         ratio); ``kappa`` for ``"bouc_wen"``; ``rate_gain``, ``rate_speed``
         (deg/s), ``creep_gain``, ``creep_tau`` (s) for ``"dahl_creep"``.
     mechanism : {"play", "bouc_wen", "dahl_creep"}
@@ -143,3 +167,34 @@ def simulate_transmission(u, dt, params, mechanism="play"):
     if u.ndim != 3 or u.shape[2] != 2:
         raise ValueError(f"u must have shape (n_steps, n_runs, 2); got {u.shape}.")
     return _STEPPERS[mechanism](u, dt, params)
+
+
+def torsional_windup(u, width):
+    """Play in the azimuth of the bend: the shaft winds up in torsion.
+
+    The bend-plane azimuth follows the azimuth ``psi`` of the motor input
+    (unwrapped over time) through a play of half-width
+    ``width * tanh(rho / 20 deg)``, so the plane lags when the bend direction
+    turns, by more when the section is bent further (and not at all when it
+    is straight, where the azimuth is meaningless).
+
+    Parameters
+    ----------
+    u : ndarray of shape (n_steps, n_runs, 2)
+        Motor input (degrees).
+    width : ndarray of shape (n_runs,)
+        Largest azimuth lag (rad).
+
+    Returns
+    -------
+    offset : ndarray of shape (n_steps, n_runs)
+        Azimuth of the bend plane minus the input azimuth (rad).
+    """
+    psi = np.unwrap(np.arctan2(u[..., 1], u[..., 0]), axis=0)
+    w = width * np.tanh(np.hypot(u[..., 0], u[..., 1]) / 20.0)
+    offset = np.empty(psi.shape)
+    state = psi[0].copy()
+    for k in range(len(psi)):
+        state = np.clip(state, psi[k] - w[k], psi[k] + w[k])
+        offset[k] = state - psi[k]
+    return offset

@@ -26,17 +26,34 @@ def min_jerk(n):
     return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
 
 
-def _move(start, stop, n):
-    """Samples of a minimum-jerk move between two points (start excluded)."""
-    s = min_jerk(n)[:, None]
+def _move(start, stop, n, profile=None):
+    """Samples of a move between two points (start excluded), minimum jerk by default."""
+    s = (min_jerk(n) if profile is None else profile(n))[:, None]
     return start + (stop - start) * s
+
+
+def constant_speed(n, ramp_fraction=0.1):
+    """Trapezoidal velocity profile from 0 to 1 in ``n`` samples (start excluded).
+
+    Constant speed except for linear acceleration and deceleration ramps
+    over ``ramp_fraction`` of the move at each end; the last value is 1.
+    """
+    tau = np.arange(1, n + 1) / n
+    a = ramp_fraction
+    v_max = 1.0 / (1.0 - a)
+    s = np.where(
+        tau < a,
+        0.5 * v_max * tau**2 / a,
+        np.where(tau > 1 - a, 1.0 - 0.5 * v_max * (1.0 - tau) ** 2 / a, v_max * (tau - 0.5 * a)),
+    )
+    return s
 
 
 def sweep_trajectory(
     *,
     amplitude_deg=60.0,
     speed_deg_s=2.4,
-    dwell_out_s=1.5,
+    dwell_out_s=0.0,
     dwell_in_s=2.5,
     rest_s=3.0,
     n_rays=8,
@@ -76,9 +93,9 @@ def sweep_trajectory(
     for k in range(n_rays):
         psi = np.deg2rad(first_direction_deg + 360.0 * k / n_rays)
         end = amplitude_deg * np.array([np.cos(psi), np.sin(psi)])
-        parts.append(_move(origin, end, n_move))
+        parts.append(_move(origin, end, n_move, constant_speed))
         parts.append(np.repeat(end[None], int(round(dwell_out_s * rate_hz)), axis=0))
-        parts.append(_move(end, origin, n_move))
+        parts.append(_move(end, origin, n_move, constant_speed))
         parts.append(np.zeros((int(round(dwell_in_s * rate_hz)), 2)))
     return np.concatenate(parts)
 

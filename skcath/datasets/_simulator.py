@@ -15,7 +15,7 @@ from sklearn.utils import Bunch
 from .. import _format as fmt
 from ..frames import tip_in_base_frame
 from ._catheter import Catheter, ShaftSetting, configure, sample_catheter, shaft_settings
-from ._hysteresis import MECHANISMS, simulate_transmission
+from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
 from ._protocol import run_protocol
 from ._sensors import DistortionField, measure_pose
@@ -30,10 +30,10 @@ RATE_HZ = 10.0
 RUN_VARIATION = {
     "gain_jitter": 0.015,
     "offset_jitter_deg": 0.4,
-    "offset_drift_deg": 0.6,
-    "offset_drift_tau_s": 60.0,
-    "gain_drift": 0.02,
-    "gain_drift_tau_s": 120.0,
+    "offset_drift_deg": 1.2,
+    "offset_drift_tau_s": 150.0,
+    "gain_drift": 0.15,
+    "gain_drift_tau_s": 300.0,
     "base_position_mm": 2.0,
     "base_rotation_deg": 2.0,
 }
@@ -58,9 +58,25 @@ def _ou(rng, n, std, tau_s, size=2):
     return lfilter([1.0], [1.0, -phi], white, axis=0)
 
 
+def _lag(v, tau_s):
+    """First-order lag (time constant ``tau_s``) along the time axis, starting at rest."""
+    alpha = 1.0 - np.exp(-1.0 / (RATE_HZ * tau_s))
+    out, _ = lfilter([alpha], [1.0, alpha - 1.0], v, axis=0, zi=(1.0 - alpha) * v[:1])
+    return out
+
+
 def _soft_dead_zone(v, width):
     """``v - d tanh(v / d)``: zero slope at neutral, ``v - d sign(v)`` far from it."""
     return v - width * np.tanh(v / width)
+
+
+def _route(theta, routing):
+    """Direction-dependent turn and scaling of the bend vector (tendon routing)."""
+    a1, z1, a3, z3, b3, x3 = routing
+    delta = np.arctan2(theta[:, 1], theta[:, 0])
+    turned = delta + a1 * np.cos(delta - z1) + a3 * np.cos(3.0 * delta - z3)
+    scale = np.hypot(theta[:, 0], theta[:, 1]) * (1.0 + b3 * np.cos(3.0 * delta - x3))
+    return scale[:, None] * np.column_stack([np.cos(turned), np.sin(turned)])
 
 
 def _axis_gains(e, gains):
@@ -101,8 +117,9 @@ def _transmission_params(specs, configs):
     cats = [s.catheter for s in specs]
     return {
         "w0": col([c["w0"] for c in configs]),
-        "growth": col([c["growth"] for c in configs]),
+        "growth": np.array([c["growth"] for c in configs], dtype=float),
         "asym": col([c.play_asym for c in cats]),
+        "cross_load": col([c.cross_load for c in cats]),
         "kappa": col([c.bw_kappa for c in cats]),
         "rate_gain": col([c.rate_gain for c in cats]),
         "rate_speed": col([c.rate_speed for c in cats]),
@@ -111,14 +128,17 @@ def _transmission_params(specs, configs):
     }
 
 
-def _finish_run(spec, draw, v, phi, field, dropout_rate):
+def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
     """Kinematics, torque and EM sensors of one run, vectorised over samples."""
     cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
     q, n = draw["q"], len(draw["q"])
-    e = _soft_dead_zone(v, cfg["dead_zone"])
+    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
+    e = _soft_dead_zone(_lag(v, cat.tip_lag), cfg["dead_zone"])
     theta = _axis_gains(e, cfg["gains"]) * draw["gain_scale"]
     c12, c21 = cfg["coupling"]
-    theta = theta @ np.array([[1.0, c21], [c12, 1.0]])
+    theta = _route(theta @ np.array([[1.0, c21], [c12, 1.0]]), cfg["routing"])
+    cw, sw = np.cos(windup), np.sin(windup)
+    theta = np.column_stack([cw * theta[:, 0] - sw * theta[:, 1], sw * theta[:, 0] + cw * theta[:, 1]])
     a, delta = bend_from_inputs(theta, rest=cfg["rest_bend"], max_bend=cat.max_bend, twist=cfg["twist"])
     share = np.clip(cat.split_fraction + cat.split_bias + cat.split_slope * (a - 1.0), 0.1, 0.9)
     p_k = tip_position(
@@ -127,7 +147,7 @@ def _finish_run(spec, draw, v, phi, field, dropout_rate):
     )
 
     # drive torque: antagonistic tendon pair through the capstan of the shaft
-    exponent = (cfg["capstan_exponent"] + cat.mu * a)[:, None] * phi
+    exponent = (cfg["capstan_exponent"] + cat.mu * a[:, None]) * phi
     pos = (cat.pretension + cat.stiffness * np.maximum(e, 0.0)) * np.exp(exponent)
     neg = (cat.pretension + cat.stiffness * np.maximum(-e, 0.0)) * np.exp(-exponent)
     omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
@@ -188,11 +208,14 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
     v_all, phi_all = simulate_transmission(
         u, 1.0 / RATE_HZ, _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
     )
+    windup_all = torsional_windup(u, np.array([d["cfg"]["windup"] for d in draws]))
 
     frames, ys, ys_true, sensors, rows = [], [], [], [], []
     for j, (spec, d) in enumerate(zip(specs, draws)):
         n = lengths[j]
-        tau, y, y_true, sens = _finish_run(spec, d, v_all[:n, j], phi_all[:n, j], field, dropout_rate)
+        tau, y, y_true, sens = _finish_run(
+            spec, d, v_all[:n, j], phi_all[:n, j], windup_all[:n, j], field, dropout_rate
+        )
         sweep = np.arange(n) < d["n_sweep"]
         ref = np.where(sweep[:, None], y, np.nan)
         frames.append(

@@ -1,0 +1,20 @@
+"""Geometric backbones: nominal tip position from motor angles, calibrated per run."""
+
+from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
+from ._lm import LMResult, levenberg_marquardt
+from ._pcc import PCCParams, calibrate_pcc, pcc_tip
+from ._pdl import PDLParams, calibrate_pdl, pdl_tip
+
+__all__ = [
+    "BACKBONE_COLUMNS",
+    "LMResult",
+    "PCCBackbone",
+    "PCCParams",
+    "PDLBackbone",
+    "PDLParams",
+    "calibrate_pcc",
+    "calibrate_pdl",
+    "levenberg_marquardt",
+    "pcc_tip",
+    "pdl_tip",
+]

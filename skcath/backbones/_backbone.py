@@ -1,0 +1,351 @@
+"""Backbone estimators: per-run calibration on the run's own sweep.
+
+A backbone ``g_xi(q)`` is calibrated separately for every recording from that
+recording's initial sweep rows (motor angles and reference tip positions),
+then evaluated on all rows of the recording. Nothing is learned across runs:
+``fit`` only validates the input and records its columns, and the calibration
+happens in ``transform`` / ``predict``, where each run's sweep is part of the
+input. Reference values on motion rows are never read.
+"""
+
+from numbers import Integral
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, _fit_context
+from sklearn.utils._param_validation import Interval
+from sklearn.utils.validation import check_is_fitted
+
+from .. import _format as fmt
+from .._validation import check_recordings, check_target, run_codes, run_positions
+from ..sweep import check_sweep_references, find_rays
+from ._pcc import calibrate_pcc, pcc_tip
+from ._pdl import calibrate_pdl, pdl_tip
+
+__all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone"]
+
+#: Columns that ``transform`` appends: the nominal tip position (mm, base frame).
+BACKBONE_COLUMNS = ("b_x", "b_y", "b_z")
+
+
+def _calibrate_run(backbone, run, q, ref, sweep):
+    """Calibrate one run on its sweep rows and evaluate it on all its rows."""
+    q_sweep, ref_sweep = q[sweep], ref[sweep]
+    rays = find_rays(q_sweep, n_rays=backbone.n_rays, run=run)
+    check_sweep_references(ref_sweep, rays, run=run)
+    params, info = backbone._calibrate(q_sweep, ref_sweep, rays)
+    return backbone._evaluate(q, params), params, info
+
+
+class _BaseBackbone(TransformerMixin, RegressorMixin, BaseEstimator):
+    """Shared machinery of the geometric backbones (not for direct use)."""
+
+    _parameter_constraints: dict = {
+        "n_rays": [Interval(Integral, 3, None, closed="left")],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "n_jobs": [None, Integral],
+    }
+
+    def __init__(self, *, n_rays=8, max_iter=100, n_jobs=None):
+        self.n_rays = n_rays
+        self.max_iter = max_iter
+        self.n_jobs = n_jobs
+
+    @_fit_context(prefer_skip_nested_validation=True)
+    def fit(self, X, y=None):
+        """Validate the recordings; a backbone has nothing to learn across runs.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format (``docs/data_format.rst``).
+        y : array-like of shape (n_samples, 3), optional
+            Tip positions (mm); validated if given, otherwise unused.
+
+        Returns
+        -------
+        self : object
+        """
+        X, _ = check_recordings(X, y)
+        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
+        self.n_features_in_ = X.shape[1]
+        return self
+
+    def _calibrate_all(self, X):
+        check_is_fitted(self)
+        X, _ = check_recordings(X)
+        _, runs = run_codes(X)
+        positions = run_positions(X)
+        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
+        ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy()
+        sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        results = Parallel(n_jobs=self.n_jobs)(
+            delayed(_calibrate_run)(self, run, q[pos], ref[pos], sweep[pos])
+            for run, pos in zip(runs, positions)
+        )
+        nominal = np.empty((len(X), 3))
+        records, params = [], {}
+        for run, pos, (tip, par, info) in zip(runs, positions, results):
+            nominal[pos] = tip
+            params[run] = par
+            records.append({fmt.RUN: run, **par.to_dict(), **_summary(info)})
+        self.calibrations_ = pd.DataFrame.from_records(records).set_index(fmt.RUN)
+        self.calibration_params_ = params
+        return X, nominal
+
+    def predict(self, X):
+        """Nominal tip position of every row, each run calibrated on its own sweep.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format; every run needs its sweep rows
+            with reference tip positions.
+
+        Returns
+        -------
+        b : ndarray of shape (n_samples, 3)
+            Nominal tip position ``g_xi(q)`` in the base frame (mm).
+        """
+        return self._calibrate_all(X)[1]
+
+    def transform(self, X):
+        """Append the nominal tip position ``b_x, b_y, b_z`` (mm) to the recordings.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format.
+
+        Returns
+        -------
+        Xt : pandas.DataFrame
+            A copy of ``X`` with the columns ``b_x``, ``b_y``, ``b_z``.
+        """
+        check_is_fitted(self)
+        if isinstance(X, pd.DataFrame) and list(X.columns) != list(self.feature_names_in_):
+            raise ValueError(
+                "X must have the columns seen in fit, in the same order (transform returns "
+                f"them followed by {list(BACKBONE_COLUMNS)}); fit saw "
+                f"{list(self.feature_names_in_)}, got {list(X.columns)}."
+            )
+        X, nominal = self._calibrate_all(X)
+        Xt = X.copy()
+        for k, name in enumerate(BACKBONE_COLUMNS):
+            Xt[name] = nominal[:, k]
+        return Xt
+
+    def get_feature_names_out(self, input_features=None):
+        """Input column names followed by those of ``b_x``, ``b_y``, ``b_z`` not among them."""
+        check_is_fitted(self)
+        names = list(self.feature_names_in_)
+        return np.asarray([*names, *(c for c in BACKBONE_COLUMNS if c not in names)], dtype=object)
+
+    def score(self, X, y, sample_weight=None):
+        """Negated mean per-run RMSE (mm) over motion rows (greater is better).
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format.
+        y : array-like of shape (n_samples, 3)
+            Measured tip positions (mm).
+        sample_weight : None
+            Not supported: runs have equal weights.
+
+        Returns
+        -------
+        score : float
+        """
+        from ..metrics import mean_per_run_rmse
+
+        if sample_weight is not None:
+            raise ValueError("sample_weight is not supported: the metric weights runs equally.")
+        y = check_target(y, len(X))
+        return -mean_per_run_rmse(y, self.predict(X), X)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.allow_nan = True
+        tags.input_tags.string = True
+        tags.input_tags.categorical = True
+        tags.target_tags.required = False
+        tags.target_tags.multi_output = True
+        tags.target_tags.single_output = False
+        return tags
+
+
+def _at_neutral(q, ref, rays):
+    """Sweep samples at the neutral motor position, whose tips give ``p0`` (PDL).
+
+    The neutral band of :func:`find_rays` (3 % of the amplitude) also holds the
+    first and last samples of every move, whose tips are already displaced;
+    averaging them would bias the neutral tip. Keep the band samples within
+    ``4 sigma`` of the neutral motor angles, ``sigma`` the encoder noise from
+    sixth differences of ``q`` (zero on smooth moves, ``sqrt(924) sigma`` on
+    white noise), and at least ``1e-9`` of the amplitude; fall back to the
+    band if none of them has a finite reference.
+    """
+    d6 = np.abs(np.diff(q, n=6, axis=0))
+    sigma = 1.4826 * float(np.median(d6, axis=0).max()) / np.sqrt(924.0) if len(d6) else 0.0
+    rho, _ = rays.polar(q)
+    at = rays.neutral & (rho <= max(4.0 * sigma, 1e-9 * rays.amplitude))
+    if not (at & np.isfinite(ref).all(axis=1)).any():
+        return rays.neutral
+    return at
+
+
+def _summary(info):
+    return {key: info[key] for key in ("rmse_mm", "n_iter", "converged") if key in info}
+
+
+class PCCBackbone(_BaseBackbone):
+    """Piecewise-constant-curvature backbone calibrated on each run's sweep.
+
+    Paper eqs. 3-4: with the bending coordinates
+
+    .. math::
+
+        u = C \\frac{q - q_0}{S_m} + u_0, \\qquad \\alpha = \\lVert u \\rVert_2,
+
+    the nominal tip position in the base frame is
+
+    .. math::
+
+        g(q) = L R_g \\begin{bmatrix} u_1 (1 - \\cos\\alpha)/\\alpha^2 \\\\
+        u_2 (1 - \\cos\\alpha)/\\alpha^2 \\\\ \\sin\\alpha / \\alpha \\end{bmatrix},
+
+    with the continuous limits at :math:`\\alpha = 0`. For every run, ``q0``
+    is the neutral motor position and ``S_m`` the amplitude of its sweep
+    (degrees); ``C`` (2x2), ``u0`` (rad), ``L`` (mm) and the tilt of ``R_g``
+    are fitted to the run's sweep samples and their reference tip positions by
+    damped Gauss-Newton (Levenberg-Marquardt) least squares
+    (:func:`calibrate_pcc`). The roll of ``R_g`` about its z axis is absorbed
+    by ``C``.
+
+    Parameters
+    ----------
+    n_rays : int, default=8
+        Number of rays of the initial sweep; a sweep with another number of
+        rays is rejected.
+    max_iter : int, default=100
+        Largest number of Gauss-Newton steps per calibration.
+    n_jobs : int, default=None
+        Runs calibrated in parallel (joblib); None means 1.
+
+    Attributes
+    ----------
+    feature_names_in_ : ndarray of str
+        Columns of ``X`` seen in ``fit``.
+    n_features_in_ : int
+        Number of columns of ``X`` seen in ``fit``.
+    calibrations_ : pandas.DataFrame
+        Set by ``transform`` / ``predict``: one row per run of the last call,
+        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
+        of iterations and whether the solver converged.
+    calibration_params_ : dict
+        Run id -> :class:`PCCParams` of the last call, usable with
+        :func:`pcc_tip`.
+
+    See Also
+    --------
+    PDLBackbone : per-direction backbone, usually more accurate.
+
+    Notes
+    -----
+    The data format is described in ``docs/data_format.rst``. Each run must
+    start with its sweep rows, whose reference columns ``ref_x``, ``ref_y``,
+    ``ref_z`` are the calibration targets; motion rows are predicted from the
+    motor angles alone.
+
+    Examples
+    --------
+    >>> from skcath.datasets import make_benchmark
+    >>> from skcath.backbones import PCCBackbone
+    >>> from skcath.metrics import mean_per_run_rmse
+    >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
+    >>> b = PCCBackbone().fit(data.X).predict(data.X)  # doctest: +SKIP
+    >>> mean_per_run_rmse(data.y, b, data.X)  # doctest: +SKIP
+    """
+
+    def _calibrate(self, q, ref, rays):
+        return calibrate_pcc(
+            q, ref, q0=rays.q_neutral, S_m=rays.amplitude, max_iter=self.max_iter, return_info=True
+        )
+
+    def _evaluate(self, q, params):
+        return pcc_tip(q, params)
+
+
+class PDLBackbone(_BaseBackbone):
+    """Per-direction backbone (PDL) calibrated on each run's sweep.
+
+    Paper eq. 5: along each sweep ray of direction :math:`\\psi`, with
+    :math:`\\rho = \\lVert q - q_n \\rVert_2` (degrees),
+
+    .. math::
+
+        \\gamma(\\rho) = a_\\gamma \\rho + b_\\gamma \\rho^2, \\quad
+        d(\\rho) = a_d \\rho + b_d \\rho^2, \\quad
+        \\varphi(\\rho) = \\varphi_0 + s_\\varphi (\\rho - \\rho_0),
+
+    where :math:`\\gamma` is twice the inclination of the tip vector from the
+    neutral tip direction, :math:`d` the distance from the neutral tip (mm)
+    and :math:`\\varphi` the azimuth of the tip vector. Coefficients are
+    interpolated linearly in :math:`\\psi` between neighbouring rays, with
+    periodic continuation and azimuth unwrapping; the tip is the point along
+    the tip direction at distance :math:`d` from the neutral tip. Per ray, the
+    coefficients are initialised by linear least squares and refined by
+    damped Gauss-Newton on the 3-D residuals (:func:`calibrate_pdl`).
+
+    Parameters
+    ----------
+    n_rays : int, default=8
+        Number of rays of the initial sweep; a sweep with another number of
+        rays is rejected.
+    max_iter : int, default=100
+        Largest number of Gauss-Newton steps per ray.
+    n_jobs : int, default=None
+        Runs calibrated in parallel (joblib); None means 1.
+
+    Attributes
+    ----------
+    feature_names_in_ : ndarray of str
+        Columns of ``X`` seen in ``fit``.
+    n_features_in_ : int
+        Number of columns of ``X`` seen in ``fit``.
+    calibrations_ : pandas.DataFrame
+        Set by ``transform`` / ``predict``: one row per run of the last call,
+        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
+        of iterations and whether the solver converged.
+    calibration_params_ : dict
+        Run id -> :class:`PDLParams` of the last call, usable with
+        :func:`pdl_tip`.
+
+    See Also
+    --------
+    PCCBackbone : constant-curvature backbone.
+
+    Notes
+    -----
+    The data format is described in ``docs/data_format.rst``.
+
+    Examples
+    --------
+    >>> from sklearn.pipeline import Pipeline
+    >>> from skcath.backbones import PDLBackbone
+    >>> from skcath.datasets import make_benchmark
+    >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
+    >>> Xt = PDLBackbone().fit_transform(data.X)  # doctest: +SKIP
+    >>> Xt[["b_x", "b_y", "b_z"]].shape  # doctest: +SKIP
+    """
+
+    def _calibrate(self, q, ref, rays):
+        return calibrate_pdl(
+            q, ref, rays.labels, rays.directions, _at_neutral(q, ref, rays),
+            q_neutral=rays.q_neutral, max_iter=self.max_iter, return_info=True,
+        )
+
+    def _evaluate(self, q, params):
+        return pdl_tip(q, params)

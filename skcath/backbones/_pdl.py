@@ -1,0 +1,741 @@
+"""Per-direction linear (PDL) backbone: tip position from motor angles along sweep rays.
+
+With the motor input written in polar form about the neutral motor angles
+:math:`q_n` (degrees),
+
+.. math::
+
+    \\rho = \\lVert q - q_n \\rVert_2, \\qquad
+    \\psi = \\operatorname{atan2}(q_2 - q_{n,2},\\, q_1 - q_{n,1}),
+
+the model (paper eq. 5) describes the tip along each sweep ray :math:`k` of
+direction :math:`\\psi_k` by three responses that are linear in their
+coefficients,
+
+.. math::
+
+    \\gamma(\\rho) &= a_\\gamma \\rho + b_\\gamma \\rho^2, \\\\
+    d(\\rho) &= a_d \\rho + b_d \\rho^2, \\\\
+    \\varphi(\\rho) &= \\varphi_0 + s_\\varphi (\\rho - \\rho_0),
+
+where :math:`\\gamma` (rad) is twice the inclination of the tip vector (from
+the origin of the base frame B to the tip) from the neutral tip direction
+:math:`n_0 = p_0 / \\lVert p_0 \\rVert`, :math:`d` (mm) the distance of the
+tip from the neutral tip :math:`p_0`, :math:`\\varphi` (rad) the azimuth of
+the tip vector about :math:`n_0` in a fixed basis :math:`(e_1, e_2)`
+perpendicular to :math:`n_0`, and :math:`\\rho_0` (degrees) a fixed reference
+magnitude. Between two neighbouring rays the six coefficients are
+interpolated linearly in :math:`\\psi`, periodically across :math:`\\pm\\pi`;
+the azimuth offsets :math:`\\varphi_0` are unwrapped from ray to ray so that
+the interpolation never jumps by :math:`2\\pi`.
+
+The tip is reconstructed from its direction and its distance to the neutral
+tip: with :math:`h = \\gamma / 2`, :math:`P = \\lVert p_0 \\rVert` and
+
+.. math::
+
+    u = \\cos h \\, n_0 + \\sin h \\, (\\cos\\varphi \\, e_1 + \\sin\\varphi \\, e_2),
+
+the tip is :math:`p = r u` with :math:`\\lVert r u - p_0 \\rVert = d`, the far
+root
+
+.. math::
+
+    r = P \\cos h + \\sqrt{\\max(0,\\, d^2 - P^2 \\sin^2 h)}.
+
+All lengths are in mm, motor angles and :math:`\\rho` in degrees, the other
+angles in radians.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._lm import levenberg_marquardt
+
+__all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_tip"]
+
+#: Names of the six per-ray coefficients, in the column order of ``PDLParams.coef``:
+#: ``a_g`` (rad/deg), ``b_g`` (rad/deg^2), ``a_d`` (mm/deg), ``b_d`` (mm/deg^2),
+#: ``phi0`` (rad), ``s_phi`` (rad/deg).
+COEF_NAMES = ("a_g", "b_g", "a_d", "b_d", "phi0", "s_phi")
+_N_COEF = len(COEF_NAMES)
+_PHI0 = COEF_NAMES.index("phi0")
+_TWO_PI = 2.0 * np.pi
+_AXES = ("x", "y", "z")
+_BASIS_ROWS = ("e1", "e2", "n0")
+
+#: Fewest samples with finite references that a ray needs (one per coefficient).
+MIN_RAY_SAMPLES = _N_COEF
+#: The azimuth of the initial fit uses the samples beyond this fraction of the
+#: ray's largest magnitude; closer to neutral the azimuth is poorly defined.
+PHI_FIT_FRACTION = 0.2
+#: Relative decrease of the cost below which a ray's Gauss-Newton refinement
+#: stops. Where the square root of the reconstruction is clamped the cost has a
+#: kink and the last steps creep; at 1e-6 the sweep RMSE is within about
+#: 1e-5 mm of the limit.
+FTOL = 1e-6
+# Below this (relative to |p0|) the square root of the reconstruction is
+# treated as 0 and its derivatives as 0 (clamped branch).
+_SQRT_FLOOR = 1e-12
+
+
+# ---------------------------------------------------------------------------
+# parameters
+# ---------------------------------------------------------------------------
+def _frozen(value, shape, name):
+    """Read-only float copy of ``value`` with the given shape."""
+    arr = np.array(value, dtype=float, copy=True)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}; got {arr.shape}.")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite.")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class PDLParams:
+    """Calibrated parameters of the per-direction linear backbone.
+
+    Attributes
+    ----------
+    p0 : ndarray of shape (3,)
+        Neutral tip position in the base frame (mm).
+    basis : ndarray of shape (3, 3)
+        Orthonormal rows ``e1``, ``e2``, ``n0`` (right-handed,
+        ``n0 = p0 / |p0|``); the azimuth ``phi`` is measured from ``e1``
+        towards ``e2``.
+    q_neutral : ndarray of shape (2,)
+        Neutral motor angles ``q_n`` (degrees).
+    directions : ndarray of shape (K,)
+        Ray directions ``psi_k`` (rad), strictly increasing in ``[-pi, pi)``.
+    coef : ndarray of shape (K, 6)
+        Per-ray coefficients, columns :data:`COEF_NAMES`: ``a_g`` (rad/deg),
+        ``b_g`` (rad/deg^2), ``a_d`` (mm/deg), ``b_d`` (mm/deg^2), ``phi0``
+        (rad, unwrapped from ray to ray) and ``s_phi`` (rad/deg).
+    rho0 : float
+        Reference magnitude of the azimuth law (degrees).
+    """
+
+    p0: np.ndarray
+    basis: np.ndarray
+    q_neutral: np.ndarray
+    directions: np.ndarray
+    coef: np.ndarray
+    rho0: float
+
+    def __post_init__(self):
+        p0 = _frozen(self.p0, (3,), "p0")
+        basis = _frozen(self.basis, (3, 3), "basis")
+        directions = np.array(self.directions, dtype=float, copy=True).ravel()
+        directions = _frozen(directions, directions.shape, "directions")
+        n_rays = len(directions)
+        _check_directions(directions)
+        if not np.isfinite(self.rho0):
+            raise ValueError(f"rho0 must be finite; got {self.rho0!r}.")
+        object.__setattr__(self, "p0", p0)
+        object.__setattr__(self, "basis", basis)
+        object.__setattr__(self, "q_neutral", _frozen(self.q_neutral, (2,), "q_neutral"))
+        object.__setattr__(self, "directions", directions)
+        object.__setattr__(self, "coef", _frozen(self.coef, (n_rays, _N_COEF), "coef"))
+        object.__setattr__(self, "rho0", float(self.rho0))
+
+    @property
+    def n_rays(self):
+        """Number of rays ``K``."""
+        return len(self.directions)
+
+    def to_dict(self):
+        """Flat dictionary of plain Python scalars (JSON-friendly).
+
+        Returns
+        -------
+        params : dict
+            ``p0_x, p0_y, p0_z`` (mm); ``e1_x`` ... ``n0_z`` (the basis rows);
+            ``q_neutral_1, q_neutral_2`` (deg); ``rho0`` (deg); ``n_rays``;
+            and for every ray ``k``: ``direction_k`` (rad) and the six
+            coefficients ``a_g_k, b_g_k, a_d_k, b_d_k, phi0_k, s_phi_k``.
+            :meth:`from_dict` inverts it.
+        """
+        out = {f"p0_{a}": float(v) for a, v in zip(_AXES, self.p0)}
+        for row, vec in zip(_BASIS_ROWS, self.basis):
+            out.update({f"{row}_{a}": float(v) for a, v in zip(_AXES, vec)})
+        out["q_neutral_1"], out["q_neutral_2"] = (float(v) for v in self.q_neutral)
+        out["rho0"] = self.rho0
+        out["n_rays"] = self.n_rays
+        for k in range(self.n_rays):
+            out[f"direction_{k}"] = float(self.directions[k])
+            out.update({f"{name}_{k}": float(v) for name, v in zip(COEF_NAMES, self.coef[k])})
+        return out
+
+    @classmethod
+    def from_dict(cls, params):
+        """Parameters from the output of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        params : dict
+            Flat dictionary as written by :meth:`to_dict`.
+
+        Returns
+        -------
+        params : PDLParams
+        """
+        n_rays = int(params["n_rays"])
+        return cls(
+            p0=[params[f"p0_{a}"] for a in _AXES],
+            basis=[[params[f"{row}_{a}"] for a in _AXES] for row in _BASIS_ROWS],
+            q_neutral=[params["q_neutral_1"], params["q_neutral_2"]],
+            directions=[params[f"direction_{k}"] for k in range(n_rays)],
+            coef=[[params[f"{name}_{k}"] for name in COEF_NAMES] for k in range(n_rays)],
+            rho0=params["rho0"],
+        )
+
+
+# ---------------------------------------------------------------------------
+# geometry helpers
+# ---------------------------------------------------------------------------
+def _wrap(angle):
+    """Angle(s) wrapped into ``[-pi, pi)`` (rad)."""
+    return (np.asarray(angle, dtype=float) + np.pi) % _TWO_PI - np.pi
+
+
+def _check_directions(directions):
+    """Raise unless ``directions`` has >= 2 strictly increasing angles in [-pi, pi)."""
+    if directions.ndim != 1 or len(directions) < 2:
+        raise ValueError(f"directions must hold at least 2 ray directions (rad); got {directions!r}.")
+    if np.any(directions < -np.pi) or np.any(directions >= np.pi):
+        raise ValueError(f"directions must lie in [-pi, pi) (rad); got {directions!r}.")
+    if np.any(np.diff(directions) <= 0.0):
+        raise ValueError(f"directions must be strictly increasing (rad); got {directions!r}.")
+
+
+def _neutral_basis(p0):
+    """Orthonormal basis ``(e1, e2, n0)`` attached to the neutral tip.
+
+    ``n0 = p0 / |p0|``; ``e1`` is the normalised component of the x axis
+    orthogonal to ``n0`` (the y axis when x is within about 25 deg of ``n0``);
+    ``e2 = n0 x e1``, so that ``(e1, e2, n0)`` is right-handed.
+
+    Parameters
+    ----------
+    p0 : array-like of shape (3,)
+        Neutral tip position (mm), non-zero.
+
+    Returns
+    -------
+    basis : ndarray of shape (3, 3)
+        Rows ``e1``, ``e2``, ``n0``.
+    """
+    p0 = np.asarray(p0, dtype=float)
+    norm = np.linalg.norm(p0)
+    if not np.isfinite(norm) or norm == 0.0:
+        raise ValueError(f"The neutral tip p0 must be finite and non-zero; got {p0!r} mm.")
+    n0 = p0 / norm
+    axis = np.array([1.0, 0.0, 0.0]) if abs(n0[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = axis - (axis @ n0) * n0
+    e1 /= np.linalg.norm(e1)
+    return np.vstack([e1, np.cross(n0, e1), n0])
+
+
+def _polar(q, q_neutral):
+    """Magnitude ``rho`` (deg) and direction ``psi`` (rad) of ``q - q_neutral``."""
+    v = q - q_neutral
+    return np.hypot(v[:, 0], v[:, 1]), np.arctan2(v[:, 1], v[:, 0])
+
+
+def _winding(phi0):
+    """Multiple of 2 pi added to ``phi0[0]`` when it follows the last ray (wrap-around).
+
+    The offsets are unwrapped ray to ray, so the step from the last ray to the
+    first is ``wrap(phi0[0] - phi0[-1])``; the winding is what makes the first
+    ray's offset continue the last one's (+2 pi for a normal catheter, -2 pi
+    for a mirrored one).
+    """
+    return phi0[-1] + _wrap(phi0[0] - phi0[-1]) - phi0[0]
+
+
+def _unwrap_rays(phi0, *, wrap_first=True):
+    """Offsets unwrapped from ray to ray (steps in ``[-pi, pi)``).
+
+    The first offset is wrapped into ``[-pi, pi)``, or kept as is when
+    ``wrap_first`` is False. Only multiples of 2 pi change, so the model is
+    unchanged.
+    """
+    first = _wrap(phi0[0]) if wrap_first else phi0[0]
+    return first + np.concatenate([[0.0], np.cumsum(_wrap(np.diff(phi0)))])
+
+
+def _ray_weights(psi, directions):
+    """Neighbouring rays and interpolation weight of each direction.
+
+    Parameters
+    ----------
+    psi : ndarray of shape (n,)
+        Motor-input directions (rad).
+    directions : ndarray of shape (K,)
+        Ray directions (rad), strictly increasing in ``[-pi, pi)``.
+
+    Returns
+    -------
+    lower : ndarray of shape (n,) of int
+        Ray at or before ``psi`` (periodically); the next ray is
+        ``(lower + 1) % K``.
+    weight : ndarray of shape (n,)
+        Weight of the next ray, in ``[0, 1]``: 0 on ray ``lower``, 1 on the next.
+    """
+    n_rays = len(directions)
+    span = np.diff(np.append(directions, directions[0] + _TWO_PI))
+    offset = np.mod(psi - directions[0], _TWO_PI)
+    lower = np.searchsorted(directions - directions[0], offset, side="right") - 1
+    lower = np.clip(lower, 0, n_rays - 1)
+    weight = np.clip((offset - (directions[lower] - directions[0])) / span[lower], 0.0, 1.0)
+    return lower, weight
+
+
+def _interpolate_coef(psi, directions, coef):
+    """Coefficients at each direction, linear between rays, periodic with unwrapped phi0.
+
+    Returns
+    -------
+    c : ndarray of shape (n, 6)
+        ``(1 - w) coef[j] + w coef[j + 1]``, where the wrap-around neighbour
+        of the last ray is the first ray with ``phi0`` shifted by the winding.
+    """
+    n_rays = len(directions)
+    coef = coef.copy()
+    coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0], wrap_first=False)  # no-op if already unwrapped
+    lower, weight = _ray_weights(psi, directions)
+    upper = (lower + 1) % n_rays
+    c_upper = coef[upper]
+    c_upper[:, _PHI0] += np.where(lower == n_rays - 1, _winding(coef[:, _PHI0]), 0.0)
+    w = weight[:, None]
+    return (1.0 - w) * coef[lower] + w * c_upper
+
+
+# ---------------------------------------------------------------------------
+# model
+# ---------------------------------------------------------------------------
+def _responses(rho, c, rho0):
+    """Responses ``gamma`` (rad), ``d`` (mm), ``phi`` (rad) for coefficients ``c``.
+
+    Parameters
+    ----------
+    rho : ndarray of shape (n,)
+        Motor-input magnitudes (deg).
+    c : ndarray of shape (6,) or (n, 6)
+        Coefficients (:data:`COEF_NAMES`), shared or per sample.
+    rho0 : float
+        Reference magnitude (deg).
+
+    Returns
+    -------
+    gamma, dist, phi : ndarray of shape (n,)
+        ``a_g rho + b_g rho^2``, ``a_d rho + b_d rho^2``,
+        ``phi0 + s_phi (rho - rho0)``.
+    """
+    gamma = rho * (c[..., 0] + c[..., 1] * rho)
+    dist = rho * (c[..., 2] + c[..., 3] * rho)
+    phi = c[..., 4] + c[..., 5] * (rho - rho0)
+    return gamma, dist, phi
+
+
+class _Reconstruction:
+    """Displacement of the tip from the neutral tip, in the basis ``(e1, e2, n0)``.
+
+    With ``h = gamma / 2``, ``P = |p0|`` and
+
+    .. math::
+
+        s = \\sqrt{\\max(0, d^2 - P^2 \\sin^2 h)}, \\quad r = P \\cos h + s,
+
+    the tip ``p = r u`` (far root of ``|r u - p0| = d``) is written as
+    ``p = p0 + delta`` with components
+
+    .. math::
+
+        \\delta_{e_1} = r \\sin h \\cos\\varphi, \\quad
+        \\delta_{e_2} = r \\sin h \\sin\\varphi, \\quad
+        \\delta_{n_0} = s \\cos h - P \\sin^2 h,
+
+    which equals ``r u - p0`` without cancellation and is exactly 0 at
+    ``gamma = d = 0``. Where the square root is clamped (``s`` below
+    ``1e-12 P``), its derivatives are taken as 0 so that they stay finite.
+
+    Parameters
+    ----------
+    gamma, dist, phi : ndarray of shape (n,)
+        Twice the inclination (rad), distance to the neutral tip (mm), azimuth (rad).
+    big_p : float
+        Distance ``P`` of the neutral tip from the origin of B (mm).
+    """
+
+    def __init__(self, gamma, dist, phi, big_p):
+        self.big_p = big_p
+        self.dist = dist
+        h = 0.5 * gamma
+        self.ch, self.sh = np.cos(h), np.sin(h)
+        self.cphi, self.sphi = np.cos(phi), np.sin(phi)
+        self.s = np.sqrt(np.maximum(dist * dist - (big_p * self.sh) ** 2, 0.0))
+        self.r = big_p * self.ch + self.s
+        self.across = self.r * self.sh
+        self.along = self.s * self.ch - big_p * self.sh * self.sh
+
+    def components(self):
+        """``delta`` in the basis, as three arrays of shape (n,) (mm)."""
+        return self.across * self.cphi, self.across * self.sphi, self.along
+
+    def derivatives(self):
+        """Derivatives of the three components with respect to ``gamma``, ``d`` and ``phi``.
+
+        Returns
+        -------
+        dgamma, dd, dphi : tuple of three ndarrays of shape (n,)
+            Per component (``e1``, ``e2``, ``n0``): ``d delta / d gamma``
+            (mm/rad), ``d delta / d d`` (mm/mm) and ``d delta / d phi`` (mm/rad).
+        """
+        big_p, ch, sh, s = self.big_p, self.ch, self.sh, self.s
+        active = s > _SQRT_FLOOR * max(big_p, 1.0)
+        inv_s = np.divide(1.0, s, out=np.zeros_like(s), where=active)
+        ds_dd = self.dist * inv_s
+        ds_dh = -(big_p * big_p) * sh * ch * inv_s
+        # d/dgamma = 0.5 d/dh
+        dacross = 0.5 * ((ds_dh - big_p * sh) * sh + self.r * ch)
+        dalong = 0.5 * (ds_dh * ch - s * sh - 2.0 * big_p * sh * ch)
+        lateral = ds_dd * sh
+        dgamma = (dacross * self.cphi, dacross * self.sphi, dalong)
+        dd = (lateral * self.cphi, lateral * self.sphi, ds_dd * ch)
+        dphi = (-self.across * self.sphi, self.across * self.cphi, np.zeros_like(s))
+        return dgamma, dd, dphi
+
+
+def _coef_jacobian(rec, rho, rho0):
+    """Jacobian ``d delta / d c`` of shape (3, n, 6) (components e1, e2, n0) by the chain rule.
+
+    ``gamma`` depends on ``(a_g, b_g)`` through ``(rho, rho^2)``, ``d`` on
+    ``(a_d, b_d)`` likewise, and ``phi`` on ``(phi0, s_phi)`` through
+    ``(1, rho - rho0)``.
+    """
+    dgamma, dd, dphi = rec.derivatives()
+    rho2 = rho * rho
+    drho = rho - rho0
+    jac = np.empty((3, len(rho), _N_COEF))
+    for axis in range(3):
+        jac[axis, :, 0] = dgamma[axis] * rho
+        jac[axis, :, 1] = dgamma[axis] * rho2
+        jac[axis, :, 2] = dd[axis] * rho
+        jac[axis, :, 3] = dd[axis] * rho2
+        jac[axis, :, 4] = dphi[axis]
+        jac[axis, :, 5] = dphi[axis] * drho
+    return jac
+
+
+def _tip_from_coef(rho, c, p0, basis, rho0, jac=False):
+    """Tip positions for magnitudes ``rho`` and shared or per-sample coefficients ``c``.
+
+    Parameters
+    ----------
+    rho : ndarray of shape (n,)
+        Motor-input magnitudes (deg).
+    c : ndarray of shape (n, 6) or (6,)
+        Coefficients (:data:`COEF_NAMES`).
+    p0, basis, rho0
+        As in :class:`PDLParams`.
+    jac : bool
+        Whether to return the Jacobian with respect to ``c``.
+
+    Returns
+    -------
+    p : ndarray of shape (n, 3)
+        Tip positions (mm); exactly ``p0`` where ``rho = 0``.
+    dp_dc : ndarray of shape (n, 3, 6)
+        Only if ``jac``: ``d p_i / d c_i`` (chain rule through ``gamma``,
+        ``d`` and ``phi``).
+    """
+    rec = _Reconstruction(*_responses(rho, c, rho0), float(np.linalg.norm(p0)))
+    p = p0 + np.column_stack(rec.components()) @ basis
+    if not jac:
+        return p
+    return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, rho, rho0), basis)
+
+
+def _check_q(q):
+    """Motor angles as a finite float array of shape (n, 2)."""
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 2:
+        raise ValueError(f"q must have shape (n_samples, 2) (motor angles, deg); got {q.shape}.")
+    if not np.all(np.isfinite(q)):
+        bad = np.flatnonzero(~np.all(np.isfinite(q), axis=1))
+        raise ValueError(f"q must be finite; rows {bad[:10].tolist()} are not.")
+    return q
+
+
+def pdl_tip(q, params):
+    """Nominal tip position of the per-direction linear backbone.
+
+    For each sample, ``rho = |q - q_n|`` and ``psi = atan2`` of ``q - q_n``;
+    the coefficients are interpolated linearly in ``psi`` between the two
+    neighbouring rays (periodically, with unwrapped ``phi0``), the responses
+
+    .. math::
+
+        \\gamma = a_\\gamma \\rho + b_\\gamma \\rho^2, \\quad
+        d = a_d \\rho + b_d \\rho^2, \\quad
+        \\varphi = \\varphi_0 + s_\\varphi (\\rho - \\rho_0)
+
+    are evaluated, and the tip is the point ``r u`` along the tip direction
+    ``u = cos(gamma/2) n0 + sin(gamma/2) (cos(phi) e1 + sin(phi) e2)`` at
+    distance ``d`` from the neutral tip ``p0`` (far root,
+    ``r = P cos(gamma/2) + sqrt(max(0, d^2 - P^2 sin^2(gamma/2)))``,
+    ``P = |p0|``). At ``q = q_n`` the tip is ``p0`` exactly.
+
+    Parameters
+    ----------
+    q : array-like of shape (n_samples, 2)
+        Motor angles (degrees).
+    params : PDLParams
+        Calibrated parameters (:func:`calibrate_pdl`).
+
+    Returns
+    -------
+    p : ndarray of shape (n_samples, 3)
+        Tip positions in the base frame (mm).
+    """
+    q = _check_q(q)
+    rho, psi = _polar(q, params.q_neutral)
+    c = _interpolate_coef(psi, params.directions, params.coef)
+    return _tip_from_coef(rho, c, params.p0, params.basis, params.rho0)
+
+
+# ---------------------------------------------------------------------------
+# calibration
+# ---------------------------------------------------------------------------
+def _reference_responses(p, p0, basis):
+    """Per-sample ``gamma`` (rad), ``d`` (mm) and ``phi`` (rad) of reference tips ``p`` (mm)."""
+    local = p @ basis.T  # components along e1, e2, n0
+    lateral = np.hypot(local[:, 0], local[:, 1])
+    gamma = 2.0 * np.arctan2(lateral, local[:, 2])
+    dist = np.linalg.norm(p - p0, axis=1)
+    phi = np.arctan2(local[:, 1], local[:, 0])
+    return gamma, dist, phi
+
+
+def _linear_fit(design, target):
+    """Least-squares coefficients of ``design @ x ~ target`` (minimum norm if rank-deficient)."""
+    return np.linalg.lstsq(design, target, rcond=None)[0]
+
+
+def _initial_ray_coef(rho, gamma, dist, phi, rho0):
+    """Initial coefficients of one ray by linear least squares on the per-sample responses.
+
+    The azimuth is unwrapped along the ray (samples in order of increasing
+    ``rho``) and fitted on samples beyond ``PHI_FIT_FRACTION`` times the ray's
+    largest magnitude (all samples with ``rho > 0`` if fewer than two qualify).
+
+    Returns
+    -------
+    coef : ndarray of shape (6,)
+    """
+    quad = np.column_stack([rho, rho * rho])
+    a_g, b_g = _linear_fit(quad, gamma)
+    a_d, b_d = _linear_fit(quad, dist)
+    far = rho > PHI_FIT_FRACTION * rho.max()
+    if np.count_nonzero(far) < 2:
+        far = rho > 0.0
+    order = np.argsort(rho[far], kind="stable")
+    rho_far = rho[far][order]
+    phi_far = np.unwrap(phi[far][order])
+    phi0, s_phi = _linear_fit(np.column_stack([np.ones_like(rho_far), rho_far - rho0]), phi_far)
+    return np.array([a_g, b_g, a_d, b_d, phi0, s_phi])
+
+
+class _RayProblem:
+    """Residuals of one ray for :func:`levenberg_marquardt`, in the basis ``(e1, e2, n0)``.
+
+    The residual of sample ``i`` is ``basis (p(rho_i; c) - p_i)``; the basis
+    is orthonormal, so the cost equals the 3-D squared error (mm^2). The
+    reconstruction computed for the trial step (``jac=False``) is kept and
+    reused when the solver asks for the Jacobian at the accepted step.
+
+    Parameters
+    ----------
+    rho : ndarray of shape (m,)
+        Motor-input magnitudes of the ray's samples (deg).
+    p_ref : ndarray of shape (m, 3)
+        Reference tips (mm).
+    p0, basis, rho0
+        As in :class:`PDLParams`.
+    """
+
+    def __init__(self, rho, p_ref, p0, basis, rho0):
+        self.rho = rho
+        self.rho0 = rho0
+        self.big_p = float(np.linalg.norm(p0))
+        self.target = ((p_ref - p0) @ basis.T).T.copy()  # (3, m)
+        self._last = None
+
+    def _evaluate(self, c):
+        if self._last is not None and np.array_equal(self._last[0], c):
+            return self._last[1], self._last[2]
+        rec = _Reconstruction(*_responses(self.rho, c, self.rho0), self.big_p)
+        res = (np.stack(rec.components()) - self.target).ravel()
+        self._last = (np.array(c, copy=True), rec, res)
+        return rec, res
+
+    def __call__(self, c, jac=True):
+        rec, res = self._evaluate(c)
+        if not jac:
+            return res
+        return res, _coef_jacobian(rec, self.rho, self.rho0).reshape(-1, _N_COEF)
+
+
+def _check_calibration_inputs(q, p, labels, directions, neutral):
+    """Validated float / int / bool copies of the inputs of :func:`calibrate_pdl`."""
+    q = _check_q(q)
+    n = len(q)
+    p = np.array(p, dtype=float, copy=True)
+    if p.shape != (n, 3):
+        raise ValueError(f"p must have shape ({n}, 3) (reference tips, mm); got {p.shape}.")
+    if np.any(np.isinf(p)):
+        raise ValueError("p must be finite or NaN (missing reference); it contains +-inf.")
+    labels = np.asarray(labels)
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer):
+        raise ValueError(f"labels must be integers of shape ({n},); got {labels.dtype} {labels.shape}.")
+    neutral = np.asarray(neutral)
+    if neutral.shape != (n,) or neutral.dtype != bool:
+        raise ValueError(f"neutral must be booleans of shape ({n},); got {neutral.dtype} {neutral.shape}.")
+    directions = np.array(directions, dtype=float, copy=True)
+    _check_directions(directions)
+    bad = (labels < -1) | (labels >= len(directions))
+    if np.any(bad):
+        raise ValueError(
+            f"labels must be -1 or a ray index in [0, {len(directions)}); "
+            f"got {np.unique(labels[bad])[:10].tolist()}."
+        )
+    return q, p, labels, directions, neutral
+
+
+def calibrate_pdl(
+    q,
+    p,
+    labels,
+    directions,
+    neutral,
+    *,
+    q_neutral=None,
+    rho0=None,
+    max_iter=50,
+    return_info=False,
+):
+    """Calibrate the per-direction linear backbone on a multidirectional sweep.
+
+    1. Rows whose reference tip has a NaN are dropped (never imputed); all
+       statistics below use the remaining rows only.
+    2. ``p0`` is the mean reference tip of the neutral rows (it averages the
+       hysteresis offsets left by the different rays); the basis is
+       ``n0 = p0 / |p0|``, ``e1`` the normalised component of the x axis (or
+       y) orthogonal to ``n0``, ``e2 = n0 x e1``.
+    3. For each ray ``k`` (rows with ``labels == k`` that are not neutral),
+       the per-sample inclination ``gamma_i = 2 angle(p_i, n0)``, distance
+       ``d_i = |p_i - p0|`` and azimuth ``phi_i`` give initial coefficients by
+       linear least squares (``gamma, d ~ a rho + b rho^2``;
+       ``phi ~ phi0 + s (rho - rho0)`` on unwrapped azimuths of the samples
+       beyond 0.2 times the ray's largest ``rho``).
+    4. The six coefficients of each ray are refined by damped Gauss-Newton
+       (:func:`~skcath.backbones.levenberg_marquardt`) on the 3-D residuals
+       ``p(rho_i) - p_i`` of its rows, with ``p0`` and the basis fixed and an
+       analytic Jacobian. Rays are independent.
+    5. ``phi0`` is unwrapped from ray to ray.
+
+    Parameters
+    ----------
+    q : array-like of shape (n_samples, 2)
+        Motor angles of the sweep (degrees).
+    p : array-like of shape (n_samples, 3)
+        Reference tip positions in the base frame (mm); rows with NaN are ignored.
+    labels : array-like of int, shape (n_samples,)
+        Ray index of each row (into ``directions``), or -1.
+    directions : array-like of shape (K,)
+        Ray directions (rad), strictly increasing in ``[-pi, pi)``, K >= 2.
+    neutral : array-like of bool, shape (n_samples,)
+        Rows at the neutral motor position.
+    q_neutral : array-like of shape (2,), optional
+        Neutral motor angles ``q_n`` (degrees); default: mean of ``q`` over
+        the neutral rows.
+    rho0 : float, optional
+        Reference magnitude of the azimuth law (degrees); default: half the
+        largest ``rho`` of the ray rows.
+    max_iter : int
+        Largest number of Gauss-Newton steps per ray.
+    return_info : bool
+        Whether to also return a summary of the fit.
+
+    Returns
+    -------
+    params : PDLParams
+    info : dict
+        Only if ``return_info``: ``cost`` (``0.5 sum |p(rho_i) - p_i|^2``
+        over the ray rows, mm^2), ``rmse_mm`` (root mean squared 3-D error
+        over the ray rows, mm), ``ray_rmse_mm`` (K,), ``n_samples`` (K,) rows
+        per ray, ``n_iter`` (largest number of Jacobian evaluations of a ray),
+        ``ray_n_iter`` (K,), ``converged`` (all rays) and ``ray_converged`` (K,).
+
+    Raises
+    ------
+    ValueError
+        On malformed inputs, without neutral rows, or when a ray has fewer
+        than 6 rows with finite references (the message names its direction
+        in degrees).
+    """
+    q, p, labels, directions, neutral = _check_calibration_inputs(q, p, labels, directions, neutral)
+    keep = np.all(np.isfinite(p), axis=1)
+    q, p, labels, neutral = q[keep], p[keep], labels[keep], neutral[keep]
+    if not np.any(neutral):
+        raise ValueError("No neutral row has a finite reference tip; p0 cannot be estimated.")
+    q_neutral = q[neutral].mean(axis=0) if q_neutral is None else np.asarray(q_neutral, dtype=float)
+    if q_neutral.shape != (2,) or not np.all(np.isfinite(q_neutral)):
+        raise ValueError(f"q_neutral must be 2 finite motor angles (deg); got {q_neutral!r}.")
+    p0 = p[neutral].mean(axis=0)
+    basis = _neutral_basis(p0)
+    rho, _ = _polar(q, q_neutral)
+
+    n_rays = len(directions)
+    rows = [np.flatnonzero((labels == k) & ~neutral) for k in range(n_rays)]
+    for k, idx in enumerate(rows):
+        if len(idx) < MIN_RAY_SAMPLES:
+            raise ValueError(
+                f"The ray at {np.rad2deg(directions[k]):.1f} deg has {len(idx)} non-neutral rows "
+                f"with finite reference tips; at least {MIN_RAY_SAMPLES} are needed."
+            )
+    if rho0 is None:
+        rho0 = 0.5 * max(float(rho[idx].max()) for idx in rows)
+    if not np.isfinite(rho0):
+        raise ValueError(f"rho0 must be finite (deg); got {rho0!r}.")
+
+    gamma_i, dist_i, phi_i = _reference_responses(p, p0, basis)
+    coef = np.empty((n_rays, _N_COEF))
+    cost = np.empty(n_rays)
+    n_iter = np.empty(n_rays, dtype=int)
+    converged = np.empty(n_rays, dtype=bool)
+    for k, idx in enumerate(rows):
+        c0 = _initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0)
+        problem = _RayProblem(rho[idx], p[idx], p0, basis, rho0)
+        result = levenberg_marquardt(problem, c0, max_iter=max_iter, ftol=FTOL)
+        coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
+    coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
+    params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)
+    if not return_info:
+        return params
+    n_samples = np.array([len(idx) for idx in rows])
+    info = {
+        "cost": float(cost.sum()),
+        "rmse_mm": float(np.sqrt(2.0 * cost.sum() / n_samples.sum())),
+        "ray_rmse_mm": np.sqrt(2.0 * cost / n_samples),
+        "n_samples": n_samples,
+        "n_iter": int(n_iter.max()),
+        "ray_n_iter": n_iter,
+        "converged": bool(converged.all()),
+        "ray_converged": converged,
+    }
+    return params, info

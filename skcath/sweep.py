@@ -1,0 +1,628 @@
+"""Rays of the initial multidirectional sweep, found from the motor angles alone.
+
+Every recording starts with a calibration sweep: from neutral the two bending
+motors move out along a ray of direction ``psi = atan2(q2 - q2_0, q1 - q1_0)``
+to a motor-input magnitude ``rho = |q - q_0|`` of about 60 degrees and back to
+neutral, once per ray, for ``n_rays`` rays evenly spaced in direction. The
+backbones are calibrated per ray, so they need to know which sweep sample
+belongs to which ray. :func:`find_rays` recovers this from the motor angles
+only (no simulator labels), tolerating a non-zero neutral, encoder noise, an
+arbitrary first direction, slightly uneven directions and any ray order;
+:func:`check_sweep_references` checks that the EM reference tip positions of a
+sweep are usable for the calibration.
+
+Algorithm of :func:`find_rays`
+------------------------------
+1. Neutral: a robust centre (median of the 10 % of samples closest to the
+   coordinate-wise median, twice), then the neutral samples are those with
+   ``rho <= max(neutral_fraction * max(rho), 4 * sigma)`` (``sigma``: encoder
+   noise estimated from second differences), and the neutral position is the
+   mean of ``q`` over them, iterated until the neutral set is stable.
+2. Excursions: contiguous stretches of non-neutral samples. An excursion whose
+   largest ``rho`` is significant (at least ``min_amplitude_deg`` and a quarter
+   of the sweep's largest ``rho``) defines a ray candidate whose direction is
+   the circular mean of ``psi`` over its far part (``rho`` above half its
+   largest ``rho``). An excursion that visits two directions without passing
+   through neutral is split at the smallest ``rho`` between them.
+3. Rays: candidates whose directions lie within half the nominal spacing
+   ``180 / n_rays`` degrees of each other are merged (repeated excursions).
+   Samples of small excursions (flicker around the neutral threshold) go to
+   the ray closest to their own direction.
+
+An excursion whose far part turns by more than a quarter of the ray spacing
+(a move along the rim from one ray to the next) is refused, since its
+direction would be a blend of two rays. All steps are vectorised over samples;
+the only Python loop is over excursions, so a 4300-sample sweep takes about
+1.5 ms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["SweepRays", "check_sweep_references", "find_rays"]
+
+_TWO_PI = 2.0 * np.pi
+# Fraction of the samples, closest to the running centre, used for the robust
+# neutral estimate.
+_CENTRE_FRACTION = 0.10
+# Neutral threshold floor in units of the estimated encoder noise (deg).
+_NOISE_FLOOR_SIGMAS = 4.0
+# An excursion is a ray candidate when its largest rho reaches this fraction of
+# the sweep's largest rho (and min_amplitude_deg).
+_SIGNIFICANT_FRACTION = 0.25
+# Far part of an excursion: rho above this fraction of the excursion's largest rho.
+_FAR_FRACTION = 0.5
+# A motor is stuck when its range is below this many degrees, or below this
+# fraction of the other motor's range, while the other one moves.
+_STUCK_RANGE_DEG = 1.0
+_STUCK_RELATIVE = 0.05
+# Largest allowed deviation of a far-part sample from its ray's direction, in
+# nominal ray spacings (a move along the rim from one ray to the next is refused).
+_MAX_SPREAD_SPACINGS = 0.25
+# Largest allowed gap between neighbouring ray directions, in nominal spacings.
+_MAX_GAP_SPACINGS = 1.5
+# References must move by at least this much over the sweep (mm).
+_MIN_REFERENCE_RANGE_MM = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class SweepRays:
+    """Rays of one run's calibration sweep, as found by :func:`find_rays`.
+
+    The arrays are read-only; compare instances field by field (``==`` is
+    identity, since element-wise array comparison has no single truth value).
+
+    Attributes
+    ----------
+    labels : ndarray of shape (n,), dtype intp
+        Ray index ``0..K-1`` of each sweep sample, indexing :attr:`directions`;
+        ``-1`` for the samples at neutral. Every sample away from neutral
+        (outward move, dwell at the ray end, return move, and transitions)
+        carries the label of a ray.
+    directions : ndarray of shape (K,), dtype float64
+        Ray directions ``psi_k`` (radians) in ``[-pi, pi)``, sorted ascending:
+        ``psi = atan2(q2 - q_neutral[1], q1 - q_neutral[0])``.
+    amplitudes : ndarray of shape (K,), dtype float64
+        Largest motor-input magnitude ``rho = |q - q_neutral|`` reached on each
+        ray (degrees).
+    neutral : ndarray of shape (n,), dtype bool
+        Samples at neutral, ``rho <=`` :attr:`neutral_threshold`.
+    q_neutral : ndarray of shape (2,), dtype float64
+        Motor angles ``(q1, q2)`` at neutral: the mean over the neutral
+        samples (degrees).
+    amplitude : float
+        Sweep amplitude: the median of :attr:`amplitudes` (degrees).
+    neutral_threshold : float
+        Largest ``rho`` counted as neutral (degrees).
+    """
+
+    labels: np.ndarray
+    directions: np.ndarray
+    amplitudes: np.ndarray
+    neutral: np.ndarray
+    q_neutral: np.ndarray
+    amplitude: float
+    neutral_threshold: float = 0.0
+
+    @property
+    def n_rays(self) -> int:
+        """Number of rays ``K``."""
+        return int(self.directions.size)
+
+    @property
+    def directions_deg(self) -> np.ndarray:
+        """Ray directions in degrees, in ``[-180, 180)``, sorted ascending."""
+        return np.rad2deg(self.directions)
+
+    def polar(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """Motor-input magnitude and direction of ``q`` relative to neutral.
+
+        Parameters
+        ----------
+        q : array-like of shape (m, 2)
+            Motor angles ``(q1, q2)`` (degrees).
+
+        Returns
+        -------
+        rho : ndarray of shape (m,)
+            ``|q - q_neutral|`` (degrees).
+        psi : ndarray of shape (m,)
+            ``atan2(q2 - q_neutral[1], q1 - q_neutral[0])`` (radians, in
+            ``[-pi, pi]``).
+        """
+        d = np.asarray(q, dtype=np.float64) - self.q_neutral
+        return np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0])
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+def _of_run(run) -> str:
+    """`` of run 'X'`` for messages, or an empty string without a run id."""
+    return "" if run is None else f" of run {run!r}"
+
+
+def _in_run(run) -> str:
+    """`` in run 'X'`` for messages, or an empty string without a run id."""
+    return "" if run is None else f" in run {run!r}"
+
+
+def _wrap(angle):
+    """Wrap angles (radians) into ``[-pi, pi)``."""
+    return (np.asarray(angle) + np.pi) % _TWO_PI - np.pi
+
+
+def _fmt_deg(directions) -> str:
+    """Directions (radians) as a readable list of degrees in ``[0, 360)``."""
+    deg = np.sort(np.rad2deg(np.asarray(directions)) % 360.0)
+    return "[" + ", ".join(f"{d:.1f}" for d in deg) + "]"
+
+
+def _stretches(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and stops (exclusive) of the contiguous True stretches of ``mask``."""
+    edges = np.diff(mask.astype(np.int8), prepend=np.int8(0), append=np.int8(0))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def _noise_level(q: np.ndarray) -> float:
+    """Robust encoder-noise standard deviation (deg) from second differences.
+
+    For white noise of standard deviation ``sigma`` the second difference has
+    standard deviation ``sqrt(6) sigma``; the median absolute value (scaled by
+    1.4826) ignores the smooth motion that dominates only a minority of steps
+    at the usual sampling rates.
+    """
+    if len(q) < 3:
+        return 0.0
+    d2 = q[2:] - 2.0 * q[1:-1] + q[:-2]
+    return float(1.4826 * np.median(np.abs(d2), axis=0).max() / np.sqrt(6.0))
+
+
+def _robust_centre(q: np.ndarray) -> np.ndarray:
+    """Approximate neutral: median of the samples closest to the running centre."""
+    centre = np.median(q, axis=0)
+    k = max(1, int(_CENTRE_FRACTION * len(q)))
+    for _ in range(2):
+        d = q - centre
+        r2 = d[:, 0] ** 2 + d[:, 1] ** 2
+        closest = np.argpartition(r2, k - 1)[:k]
+        centre = np.median(q[closest], axis=0)
+    return centre
+
+
+def _circular_groups(angles: np.ndarray, tol: float) -> np.ndarray:
+    """Group angles (radians) on the circle: neighbours closer than ``tol`` join.
+
+    Returns the group id of every angle, ``0..G-1``.
+    """
+    m = angles.size
+    if m == 0:
+        return np.zeros(0, dtype=np.intp)
+    order = np.argsort(angles)
+    s = angles[order]
+    gaps = np.diff(s, append=s[0] + _TWO_PI)  # gap after each sorted angle
+    breaks = gaps > tol
+    group_sorted = np.concatenate([[0], np.cumsum(breaks[:-1])]).astype(np.intp)
+    if breaks.any() and not breaks[-1]:
+        # the wrap-around gap is small: the last group continues the first
+        group_sorted[group_sorted == group_sorted[-1]] = 0
+    _, group_sorted = np.unique(group_sorted, return_inverse=True)
+    groups = np.empty(m, dtype=np.intp)
+    groups[order] = group_sorted
+    return groups
+
+
+# ---------------------------------------------------------------------------
+# find_rays
+# ---------------------------------------------------------------------------
+def _check_motor_angles(q, run, n_rays, min_samples) -> np.ndarray:
+    """Validate the sweep motor angles and return them as a float64 array."""
+    try:
+        arr = np.asarray(q, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"The sweep motor angles{_of_run(run)} must be a numeric array of "
+            f"shape (n, 2) with columns q1, q2 (degrees); converting them failed: {exc}"
+        ) from None
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(
+            f"The sweep motor angles{_of_run(run)} must have shape (n, 2) with "
+            f"columns q1, q2 (degrees); got shape {arr.shape}."
+        )
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        cols = [name for j, name in enumerate(("q1", "q2")) if bad[:, j].any()]
+        first = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise ValueError(
+            f"The sweep motor angles{_of_run(run)} contain "
+            f"{int(bad.sum())} non-finite value(s) in column(s) {cols}; first at "
+            f"sweep sample {first}. Motor angles must be finite."
+        )
+    n = arr.shape[0]
+    if n < min_samples:
+        raise ValueError(
+            f"The sweep{_of_run(run)} has {n} samples; expected at least "
+            f"{min_samples} (n_rays={n_rays} rays out and back from neutral)."
+        )
+    return arr
+
+
+def _check_motion(q, rho_max, run, n_rays, min_amplitude_deg) -> None:
+    """Raise when the motors do not move or one of them is stuck."""
+    if rho_max < min_amplitude_deg:
+        raise ValueError(
+            f"The motors do not move during the sweep{_of_run(run)}: the largest "
+            f"motor-input magnitude |q - q_neutral| is {rho_max:.3g} deg; expected "
+            f"rays of at least min_amplitude_deg={min_amplitude_deg:g} deg."
+        )
+    if n_rays < 3:  # two opposite rays may legitimately use a single motor
+        return
+    span = np.ptp(q, axis=0)
+    for j, name in enumerate(("q1", "q2")):
+        other = span[1 - j]
+        limit = max(_STUCK_RANGE_DEG, _STUCK_RELATIVE * other)
+        if span[j] < limit and other >= min_amplitude_deg:
+            raise ValueError(
+                f"Motor column {name!r} does not move during the sweep{_of_run(run)}: "
+                f"its range is {span[j]:.3g} deg while "
+                f"{('q1', 'q2')[1 - j]!r} spans {other:.3g} deg; a sweep of "
+                f"{n_rays} rays moves both motors (expected a range of at least "
+                f"{limit:.3g} deg). Is the motor or its encoder stuck?"
+            )
+
+
+def _excursion_pieces(rho, ux, uy, neutral, significant, tol):
+    """Split the non-neutral stretches into pieces, one per visited direction.
+
+    Returns
+    -------
+    starts, stops : ndarray of int
+        Sample range of each piece.
+    is_ray : ndarray of bool
+        Whether the piece is a ray candidate (part of a significant excursion).
+    csum, ssum : ndarray of float
+        Sums of ``cos psi`` and ``sin psi`` over the far part of each candidate
+        (``rho`` above half the candidate's largest ``rho``); 0 otherwise.
+    spread : ndarray of float
+        Largest angular distance (radians) of a far-part sample from the
+        candidate's circular-mean direction; 0 for the other pieces.
+    """
+    seg_starts, seg_stops = _stretches(~neutral)
+    starts, stops, is_ray = [], [], []
+    for a, b in zip(seg_starts.tolist(), seg_stops.tolist()):
+        r = rho[a:b]
+        peak = r.max()
+        if peak < significant:
+            starts.append(a)
+            stops.append(b)
+            is_ray.append(False)
+            continue
+        far = r > _FAR_FRACTION * peak
+        f_starts, f_stops = _stretches(far)
+        bounds = [a]
+        if f_starts.size > 1:
+            cx = np.add.reduceat(np.where(far, ux[a:b], 0.0), f_starts)
+            cy = np.add.reduceat(np.where(far, uy[a:b], 0.0), f_starts)
+            angle = np.arctan2(cy, cx)
+            # consecutive far stretches pointing the same way stay together; a
+            # new direction reached without passing through neutral starts a
+            # new piece at the smallest rho between the two far stretches
+            group_angle = angle[0]
+            gx, gy = cx[0], cy[0]
+            for i in range(1, f_starts.size):
+                if abs(_wrap(angle[i] - group_angle)) <= tol:
+                    gx, gy = gx + cx[i], gy + cy[i]
+                else:
+                    lo, hi = f_stops[i - 1], f_starts[i]
+                    bounds.append(a + lo + int(np.argmin(r[lo:hi])))
+                    gx, gy = cx[i], cy[i]
+                group_angle = np.arctan2(gy, gx)
+        bounds.append(b)
+        starts.extend(bounds[:-1])
+        stops.extend(bounds[1:])
+        is_ray.extend([True] * (len(bounds) - 1))
+
+    starts = np.asarray(starts, dtype=np.intp)
+    stops = np.asarray(stops, dtype=np.intp)
+    is_ray = np.asarray(is_ray, dtype=bool)
+    csum = np.zeros(starts.size)
+    ssum = np.zeros(starts.size)
+    spread = np.zeros(starts.size)
+    for i in np.flatnonzero(is_ray).tolist():
+        r = rho[starts[i] : stops[i]]
+        far = r > _FAR_FRACTION * r.max()
+        fx = ux[starts[i] : stops[i]][far]
+        fy = uy[starts[i] : stops[i]][far]
+        csum[i], ssum[i] = fx.sum(), fy.sum()
+        mean = np.arctan2(ssum[i], csum[i])
+        # angular distance of each far sample from the mean direction
+        cos_dev = np.clip(fx * np.cos(mean) + fy * np.sin(mean), -1.0, 1.0)
+        spread[i] = np.arccos(cos_dev.min())
+    return starts, stops, is_ray, csum, ssum, spread
+
+
+def find_rays(
+    q,
+    *,
+    n_rays: int = 8,
+    run=None,
+    neutral_fraction: float = 0.03,
+    min_amplitude_deg: float = 5.0,
+    min_samples: int | None = None,
+) -> SweepRays:
+    """Find the rays of a calibration sweep from its motor angles.
+
+    Parameters
+    ----------
+    q : array-like of shape (n, 2)
+        Motor angles ``(q1, q2)`` (degrees) of the sweep rows of one run, in
+        time order. Never modified.
+    n_rays : int, default 8
+        Number of rays the protocol sweeps, evenly spaced by ``360 / n_rays``
+        degrees.
+    run : str or None, default None
+        Run id, used in error messages only.
+    neutral_fraction : float, default 0.03
+        Samples with ``rho = |q - q_neutral|`` at most this fraction of the
+        largest ``rho`` of the sweep are at neutral (the threshold never drops
+        below four times the encoder noise estimated from the data).
+    min_amplitude_deg : float, default 5.0
+        Smallest motor-input magnitude (degrees) that counts as motion; an
+        excursion must reach it (and a quarter of the sweep's largest ``rho``)
+        to define a ray.
+    min_samples : int or None, default None
+        Fewest sweep samples accepted; None means ``10 * n_rays``.
+
+    Returns
+    -------
+    rays : SweepRays
+        Labels, sorted directions (radians), amplitudes (degrees), neutral
+        mask and neutral motor angles (degrees) of the sweep.
+
+    Raises
+    ------
+    ValueError
+        Naming the run, when ``q`` is not of shape (n, 2) or not finite, when
+        the sweep has fewer than ``min_samples`` samples, when the motors do
+        not move (largest ``rho`` below ``min_amplitude_deg``), when one motor
+        column (``q1`` or ``q2``) is stuck while the other moves, when fewer or
+        more distinct rays than ``n_rays`` are found, when two neighbouring
+        ray directions are more than ``1.5 * 360 / n_rays`` degrees apart (a
+        ray is missing), or when an excursion changes direction far from
+        neutral by more than ``90 / n_rays`` degrees (a move along the rim
+        between rays instead of out and back).
+
+    Notes
+    -----
+    Only the motor angles are used. The neutral position is estimated from the
+    data, so a rig whose neutral is not at ``q = 0`` works; the first ray's
+    direction and the order of the rays are arbitrary. Repeated excursions in
+    the same direction (within ``180 / n_rays`` degrees) form one ray. The
+    cost is linear in ``n`` with a Python loop over excursions only.
+
+    Examples
+    --------
+    >>> from skcath.datasets._protocol import sweep_trajectory
+    >>> rays = find_rays(sweep_trajectory(), run="demo")
+    >>> rays.n_rays, round(rays.amplitude, 1)
+    (8, 60.0)
+    """
+    n_rays = int(n_rays)
+    if n_rays < 2:
+        raise ValueError(f"n_rays must be at least 2; got {n_rays}.")
+    if not 0.0 < neutral_fraction < _FAR_FRACTION:
+        raise ValueError(
+            f"neutral_fraction must be in (0, {_FAR_FRACTION}); got {neutral_fraction!r}."
+        )
+    if not min_amplitude_deg > 0.0:
+        raise ValueError(f"min_amplitude_deg must be positive; got {min_amplitude_deg!r}.")
+    if min_samples is None:
+        min_samples = 10 * n_rays
+    q = _check_motor_angles(q, run, n_rays, int(min_samples))
+
+    # 1. neutral position and threshold
+    centre = _robust_centre(q)
+    d = q - centre
+    rho = np.hypot(d[:, 0], d[:, 1])
+    rho_max = float(rho.max())
+    _check_motion(q, rho_max, run, n_rays, min_amplitude_deg)
+    threshold = max(neutral_fraction * rho_max, _NOISE_FLOOR_SIGMAS * _noise_level(q))
+    neutral = rho <= threshold
+    if not neutral.any():
+        raise ValueError(
+            f"The sweep{_of_run(run)} never comes back to neutral: no sample lies "
+            f"within {threshold:.3g} deg of the estimated neutral motor angles "
+            f"{np.round(centre, 2).tolist()}; expected each ray to start and end at neutral."
+        )
+    for _ in range(5):
+        centre = q[neutral].mean(axis=0)
+        d = q - centre
+        rho = np.hypot(d[:, 0], d[:, 1])
+        updated = rho <= threshold
+        if np.array_equal(updated, neutral) or not updated.any():
+            break
+        neutral = updated
+    q_neutral = centre
+
+    # 2. excursions and their directions
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ux = np.where(neutral, 0.0, d[:, 0] / rho)
+        uy = np.where(neutral, 0.0, d[:, 1] / rho)
+    tol = np.pi / n_rays  # half the nominal spacing
+    significant = max(min_amplitude_deg, _SIGNIFICANT_FRACTION * float(rho.max()))
+    starts, stops, is_ray, csum, ssum, spread = _excursion_pieces(
+        rho, ux, uy, neutral, significant, tol
+    )
+    max_spread = _MAX_SPREAD_SPACINGS * _TWO_PI / n_rays
+    if spread.max(initial=0.0) > max_spread:
+        i = int(np.argmax(spread))
+        raise ValueError(
+            f"The sweep{_of_run(run)} changes direction far from neutral within "
+            f"one excursion (sweep samples {int(starts[i])}-{int(stops[i]) - 1}): "
+            f"its direction psi deviates by up to {np.rad2deg(spread[i]):.1f} deg "
+            f"from its mean; expected out-and-back moves along rays from neutral, "
+            f"each within {np.rad2deg(max_spread):.1f} deg of one direction at "
+            f"rho above half its peak."
+        )
+
+    # 3. merge candidates pointing the same way into rays
+    cand = np.flatnonzero(is_ray)
+    cand_dir = np.arctan2(ssum[cand], csum[cand])
+    groups = _circular_groups(cand_dir, tol)
+    n_found = int(groups.max()) + 1 if groups.size else 0
+    gx = np.bincount(groups, weights=csum[cand], minlength=n_found)
+    gy = np.bincount(groups, weights=ssum[cand], minlength=n_found)
+    group_dir = _wrap(np.arctan2(gy, gx))
+    order = np.argsort(group_dir)
+    directions = group_dir[order]
+    rank = np.empty(n_found, dtype=np.intp)
+    rank[order] = np.arange(n_found)
+
+    if n_found != n_rays:
+        what = "Rays missing" if n_found < n_rays else "Too many rays"
+        raise ValueError(
+            f"{what} in the sweep{_of_run(run)}: found {n_found} distinct "
+            f"ray(s) at directions {_fmt_deg(directions)} deg (from "
+            f"{cand.size} excursion(s) away from neutral); expected "
+            f"n_rays={n_rays} rays spaced {360.0 / n_rays:g} deg apart."
+        )
+    gaps = np.diff(directions, append=directions[0] + _TWO_PI)
+    max_gap = _MAX_GAP_SPACINGS * _TWO_PI / n_rays
+    if gaps.max() > max_gap:
+        i = int(np.argmax(gaps))
+        a = np.rad2deg(directions[i]) % 360.0
+        b = np.rad2deg(directions[(i + 1) % n_found]) % 360.0
+        raise ValueError(
+            f"Rays missing in the sweep{_of_run(run)}: a gap of "
+            f"{np.rad2deg(gaps[i]):.1f} deg between the rays at {a:.1f} and "
+            f"{b:.1f} deg (directions found: {_fmt_deg(directions)} deg); expected "
+            f"{n_rays} rays spaced {360.0 / n_rays:g} deg apart, with no gap above "
+            f"{np.rad2deg(max_gap):.1f} deg."
+        )
+
+    # labels: ray candidates by excursion, small excursions by direction
+    piece_label = np.full(starts.size, -1, dtype=np.intp)
+    piece_label[cand] = rank[groups]
+    labels = np.full(len(q), -1, dtype=np.intp)
+    lengths = stops - starts
+    idx = np.repeat(starts - np.cumsum(np.concatenate([[0], lengths[:-1]])), lengths)
+    idx += np.arange(lengths.sum())
+    labels[idx] = np.repeat(piece_label, lengths)
+    loose = np.flatnonzero((labels < 0) & ~neutral)
+    if loose.size:
+        psi = np.arctan2(uy[loose], ux[loose])
+        dist = np.abs(_wrap(psi[:, None] - directions[None, :]))
+        labels[loose] = np.argmin(dist, axis=1)
+
+    amplitudes = np.zeros(n_found)
+    on_ray = labels >= 0
+    np.maximum.at(amplitudes, labels[on_ray], rho[on_ray])
+    for array in (labels, directions, amplitudes, neutral, q_neutral):
+        array.flags.writeable = False
+    return SweepRays(
+        labels=labels,
+        directions=directions,
+        amplitudes=amplitudes,
+        neutral=neutral,
+        q_neutral=q_neutral,
+        amplitude=float(np.median(amplitudes)),
+        neutral_threshold=float(threshold),
+    )
+
+
+# ---------------------------------------------------------------------------
+# check_sweep_references
+# ---------------------------------------------------------------------------
+def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: float = 0.5) -> None:
+    """Check that the EM reference tip positions of a sweep can calibrate a backbone.
+
+    Parameters
+    ----------
+    ref : array-like of shape (n, 3)
+        Reference tip positions in the base frame (mm) of the sweep samples
+        passed to :func:`find_rays`, in the same order. NaN marks a tracker
+        dropout.
+    rays : SweepRays
+        The rays of the same sweep, from :func:`find_rays`.
+    run : str or None, default None
+        Run id, used in error messages only.
+    min_fraction : float, default 0.5
+        Smallest fraction of each ray's samples that must have a finite
+        reference.
+
+    Raises
+    ------
+    ValueError
+        Naming the run, when ``ref`` does not have shape ``(n, 3)`` matching
+        ``rays``, when fewer than ``min_fraction`` of a ray's samples have a
+        finite reference (the message names the ray direction in degrees),
+        when no neutral sample has a finite reference, or when the references
+        do not move (peak-to-peak below 1 mm in every coordinate over the
+        sweep).
+
+    Notes
+    -----
+    A row counts as finite when all three coordinates are finite. ``ref`` is
+    never modified.
+    """
+    if not isinstance(rays, SweepRays):
+        raise TypeError(
+            f"rays must be the SweepRays returned by find_rays; got "
+            f"{type(rays).__module__}.{type(rays).__qualname__}."
+        )
+    if not 0.0 <= min_fraction <= 1.0:
+        raise ValueError(f"min_fraction must be in [0, 1]; got {min_fraction!r}.")
+    try:
+        ref = np.asarray(ref, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"The sweep references{_of_run(run)} must be numeric of shape (n, 3) "
+            f"(ref_x, ref_y, ref_z in mm); converting them failed: {exc}"
+        ) from None
+    n = rays.labels.size
+    if ref.shape != (n, 3):
+        raise ValueError(
+            f"The sweep references{_of_run(run)} must have shape ({n}, 3), one "
+            f"(ref_x, ref_y, ref_z) row (mm) per sweep sample; got shape {ref.shape}."
+        )
+    finite = np.isfinite(ref).all(axis=1)
+
+    k = rays.n_rays
+    on_ray = rays.labels >= 0
+    total = np.bincount(rays.labels[on_ray], minlength=k)
+    good = np.bincount(rays.labels[on_ray & finite], minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fraction = np.where(total > 0, good / np.maximum(total, 1), 0.0)
+    poor = np.flatnonzero(fraction < min_fraction)
+    if poor.size:
+        deg = np.rad2deg(rays.directions) % 360.0
+        listed = "; ".join(
+            f"ray {int(i)} at {deg[i]:.1f} deg: {int(good[i])} of {int(total[i])} "
+            f"({100.0 * fraction[i]:.0f} %)"
+            for i in poor
+        )
+        raise ValueError(
+            f"Too few finite reference tip positions{_in_run(run)} on "
+            f"{poor.size} ray(s) of the sweep ({listed}); expected at least "
+            f"{100.0 * min_fraction:.0f} % of each ray's samples to have finite "
+            f"ref_x, ref_y, ref_z (EM tracker dropouts?)."
+        )
+    n_neutral = int(rays.neutral.sum())
+    if not (finite & rays.neutral).any():
+        raise ValueError(
+            f"No neutral sample of the sweep{_of_run(run)} has a finite reference "
+            f"tip position ({n_neutral} neutral sample(s), all NaN); expected at "
+            "least one to locate the neutral tip."
+        )
+    span = np.ptp(ref[finite], axis=0)
+    if span.max() < _MIN_REFERENCE_RANGE_MM:
+        raise ValueError(
+            f"The reference tip positions{_in_run(run)} do not move during the "
+            f"sweep: their range is {np.array2string(span, precision=3)} mm in "
+            f"(ref_x, ref_y, ref_z); expected at least "
+            f"{_MIN_REFERENCE_RANGE_MM:g} mm while the motors sweep "
+            f"{rays.amplitude:.1f} deg. Is the EM tip sensor attached and read?"
+        )
