@@ -56,12 +56,10 @@ Targets: median calibration time at most 20 ms (PDL) and 50 ms (PCC) on a
 
 import argparse
 import contextlib
-import datetime
 import gc
 import hashlib
 import json
 import os
-import platform
 import sys
 import time
 
@@ -76,6 +74,7 @@ except ImportError:  # pin the BLAS threads before numpy is imported
 import numpy as np
 from scipy.optimize import least_squares
 
+from _machine import machine_lines
 from skcath import _format as fmt
 from skcath.backbones import _pcc, _pdl, calibrate_pcc, calibrate_pdl
 from skcath.backbones._lm import LMResult
@@ -385,32 +384,18 @@ def _thread_pools():
 
 
 def _machine():
-    lines = [
-        f"date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}",
-        f"python {platform.python_version()} on {platform.platform()}",
-        f"logical CPUs: {os.cpu_count()}",
-    ]
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
-        if model:
-            lines.append(f"CPU: {model}")
-    except OSError:
-        pass
-    import scipy
-
+    lines = machine_lines()
     import skcath.datasets
     from skcath.datasets import SIMULATOR_VERSION
 
-    # the simulator is still being tuned: fingerprint its sources
+    # fingerprint the simulator sources, so a table can be matched to the code
     folder = os.path.dirname(skcath.datasets.__file__)
     digest = hashlib.sha1()
     for name in sorted(os.listdir(folder)):
         if name.endswith(".py"):
             with open(os.path.join(folder, name), "rb") as f:
                 digest.update(name.encode() + f.read())
-    lines.append(f"numpy {np.__version__}, scipy {scipy.__version__}; "
-                 f"SIMULATOR_VERSION = {SIMULATOR_VERSION!r}, "
+    lines.append(f"SIMULATOR_VERSION = {SIMULATOR_VERSION!r}, "
                  f"sha1 of skcath/datasets/*.py {digest.hexdigest()[:12]}")
     return lines
 

@@ -23,17 +23,17 @@ The table is printed in Markdown. The target is a generation time of at most
 """
 
 import argparse
-import datetime
 import gc
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
 import tempfile
 import time
 import tracemalloc
+
+from _machine import machine_lines
 
 MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 MB = 1024.0**2
@@ -120,24 +120,7 @@ def _child(args):
 
 
 def _machine():
-    lines = [
-        f"date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}",
-        f"python {platform.python_version()} on {platform.platform()}",
-        f"logical CPUs: {os.cpu_count()}",
-    ]
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
-        if model:
-            lines.append(f"CPU: {model}")
-    except OSError:
-        pass
-    import numpy
-    import pandas
-    import scipy
-
-    lines.append(f"numpy {numpy.__version__}, scipy {scipy.__version__}, pandas {pandas.__version__}")
-    return lines
+    return machine_lines()
 
 
 def _table(results, target):
