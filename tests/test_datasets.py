@@ -575,7 +575,8 @@ def test_small_benchmark_cache_round_trip(small_benchmark, tmp_path, monkeypatch
 
 def test_simulator_version_keys_the_cache(small_benchmark, tmp_path, monkeypatch):
     # A cache written by another simulator version is never reused.
-    assert SIMULATOR_VERSION == _benchmark.SIMULATOR_VERSION == "2"
+    version = _benchmark.SIMULATOR_VERSION
+    assert SIMULATOR_VERSION == version
     calls = []
 
     def fake_simulation(*args, **kwargs):
@@ -585,13 +586,13 @@ def test_simulator_version_keys_the_cache(small_benchmark, tmp_path, monkeypatch
 
     monkeypatch.setattr(_benchmark, "simulate_runs", fake_simulation)
     current = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
-    assert current.key["version"] == "2"
-    monkeypatch.setattr(_benchmark, "SIMULATOR_VERSION", "1")
+    assert current.key["version"] == version
+    monkeypatch.setattr(_benchmark, "SIMULATOR_VERSION", version + "-older")
     older = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
-    assert older.key["version"] == "1"
+    assert older.key["version"] == version + "-older"
     assert len(calls) == 2
     assert len(list(tmp_path.glob("benchmark-play-*.joblib"))) == 2
-    monkeypatch.setattr(_benchmark, "SIMULATOR_VERSION", "2")
+    monkeypatch.setattr(_benchmark, "SIMULATOR_VERSION", version)
     again = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
     assert len(calls) == 2
     assert again.key == current.key

@@ -41,7 +41,12 @@ root
 
 .. math::
 
-    r = P \\cos h + \\sqrt{\\max(0,\\, d^2 - P^2 \\sin^2 h)}.
+    r = P \\cos h + \\operatorname{sgn}(D) \\sqrt{|D|}, \\qquad D = d^2 - P^2 \\sin^2 h.
+
+Where the sphere of radius :math:`d` about the neutral tip misses the tip
+direction (:math:`D < 0`, which the fit can reach on hysteretic sweeps), the
+root is continued monotonically through the closest point of the ray rather
+than held there, so that the cost has no flat region.
 
 All lengths are in mm, motor angles and :math:`\\rho` in degrees, the other
 angles in radians.
@@ -71,12 +76,12 @@ MIN_RAY_SAMPLES = _N_COEF
 #: ray's largest magnitude; closer to neutral the azimuth is poorly defined.
 PHI_FIT_FRACTION = 0.2
 #: Relative decrease of the cost below which a ray's Gauss-Newton refinement
-#: stops. Where the square root of the reconstruction is clamped the cost has a
-#: kink and the last steps creep; at 1e-6 the sweep RMSE is within about
-#: 1e-5 mm of the limit.
-FTOL = 1e-6
-# Below this (relative to |p0|) the square root of the reconstruction is
-# treated as 0 and its derivatives as 0 (clamped branch).
+#: stops. The square root of the reconstruction has a vertical tangent at
+#: ``D = 0``, where the last steps creep; 1e-8 keeps the calibration within
+#: its time budget and its cost within 1e-5 of scipy's (benchmarks/README.md).
+FTOL = 1e-8
+# Below this (relative to |p0|) the signed square root of the reconstruction
+# has its derivatives taken as 0, so that they stay finite.
 _SQRT_FLOOR = 1e-12
 
 
@@ -348,7 +353,8 @@ class _Reconstruction:
 
     .. math::
 
-        s = \\sqrt{\\max(0, d^2 - P^2 \\sin^2 h)}, \\quad r = P \\cos h + s,
+        s = \\operatorname{sgn}(D) \\sqrt{|D|}, \\quad D = d^2 - P^2 \\sin^2 h,
+        \\quad r = P \\cos h + s,
 
     the tip ``p = r u`` (far root of ``|r u - p0| = d``) is written as
     ``p = p0 + delta`` with components
@@ -360,8 +366,8 @@ class _Reconstruction:
         \\delta_{n_0} = s \\cos h - P \\sin^2 h,
 
     which equals ``r u - p0`` without cancellation and is exactly 0 at
-    ``gamma = d = 0``. Where the square root is clamped (``s`` below
-    ``1e-12 P``), its derivatives are taken as 0 so that they stay finite.
+    ``gamma = d = 0``. Where ``|s|`` is below ``1e-12 P``, its derivatives
+    are taken as 0 so that they stay finite.
 
     Parameters
     ----------
@@ -377,7 +383,8 @@ class _Reconstruction:
         h = 0.5 * gamma
         self.ch, self.sh = np.cos(h), np.sin(h)
         self.cphi, self.sphi = np.cos(phi), np.sin(phi)
-        self.s = np.sqrt(np.maximum(dist * dist - (big_p * self.sh) ** 2, 0.0))
+        disc = dist * dist - (big_p * self.sh) ** 2
+        self.s = np.sign(disc) * np.sqrt(np.abs(disc))
         self.r = big_p * self.ch + self.s
         self.across = self.r * self.sh
         self.along = self.s * self.ch - big_p * self.sh * self.sh
@@ -396,8 +403,8 @@ class _Reconstruction:
             (mm/rad), ``d delta / d d`` (mm/mm) and ``d delta / d phi`` (mm/rad).
         """
         big_p, ch, sh, s = self.big_p, self.ch, self.sh, self.s
-        active = s > _SQRT_FLOOR * max(big_p, 1.0)
-        inv_s = np.divide(1.0, s, out=np.zeros_like(s), where=active)
+        active = np.abs(s) > _SQRT_FLOOR * max(big_p, 1.0)
+        inv_s = np.divide(1.0, np.abs(s), out=np.zeros_like(s), where=active)
         ds_dd = self.dist * inv_s
         ds_dh = -(big_p * big_p) * sh * ch * inv_s
         # d/dgamma = 0.5 d/dh
@@ -487,7 +494,7 @@ def pdl_tip(q, params):
     are evaluated, and the tip is the point ``r u`` along the tip direction
     ``u = cos(gamma/2) n0 + sin(gamma/2) (cos(phi) e1 + sin(phi) e2)`` at
     distance ``d`` from the neutral tip ``p0`` (far root,
-    ``r = P cos(gamma/2) + sqrt(max(0, d^2 - P^2 sin^2(gamma/2)))``,
+    ``r = P cos(gamma/2) + sgn(D) sqrt(|D|)``, ``D = d^2 - P^2 sin^2(gamma/2)``,
     ``P = |p0|``). At ``q = q_n`` the tip is ``p0`` exactly.
 
     Parameters
