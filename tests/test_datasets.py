@@ -499,7 +499,7 @@ def test_default_benchmark_ranges(default_benchmark):
     tip = pd.DataFrame(y, columns=["x", "y", "z"]).groupby(run)
     spans = tip.max() - tip.min()
     typical = spans.median()
-    # measured median spans (mm): x 53.8, y 54.7, z 31.3 (simulator version 3)
+    # measured median spans (mm): x 53.6, y 54.3, z 31.0 (simulator version 4)
     assert typical.between(25.0, 60.0).all(), typical.to_dict()
     # every run reaches the amplitude on its sweep, and never goes beyond
     rho = pd.Series(np.hypot(X["q1"], X["q2"]).to_numpy()).groupby(run).max()

@@ -289,7 +289,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
         route_b3=n(0.0, 0.15),
         route_shift=u(0.07, 0.11),
         route_phases=u(-np.pi, np.pi, size=3),
-        windup=np.deg2rad(u(2.5, 4.5)),
+        windup=np.deg2rad(u(3.0, 5.0)),
         cross_load=u(0.2, 0.4),
         slow_creep_gain=u(0.06, 0.12),
         slow_creep_tau=u(10.0, 30.0),

@@ -32,7 +32,7 @@ RUN_VARIATION = {
     "offset_jitter_deg": 0.4,
     "offset_drift_deg": 1.2,
     "offset_drift_tau_s": 150.0,
-    "gain_drift": 0.15,
+    "gain_drift": 0.10,
     "gain_drift_tau_s": 300.0,
     "base_position_mm": 2.0,
     "base_rotation_deg": 2.0,
