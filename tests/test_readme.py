@@ -153,3 +153,14 @@ def test_readme_read_recording_example_runs(tmp_path, monkeypatch):
         frame[["tip_x", "tip_y", "tip_z"]].to_numpy() - [1.0, 2.0, 3.0]
     )
     np.testing.assert_allclose(y, expected, atol=1e-9)
+
+
+def test_readme_backbone_example_runs(tmp_path, monkeypatch, capsys):
+    """The Pipeline / cross_validate example of the README runs and scores in mm."""
+    monkeypatch.setenv("SKCATH_DATA", str(tmp_path / "data"))
+    namespace = {}
+    exec(compile(_block_using("cross_validate"), "README.md", "exec"), namespace)
+    out = capsys.readouterr().out
+    match = re.search(r"PDL: ([0-9.]+) mm", out)
+    assert match, out
+    assert 0.5 < float(match.group(1)) < 30.0
