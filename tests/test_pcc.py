@@ -1,5 +1,6 @@
 """Tests of the PCC backbone: model, analytic Jacobian and calibration."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -336,6 +337,18 @@ def test_fits_simulated_sweep(seed, setting):
     spread = np.sqrt(np.mean(np.sum((p[keep] - p[keep].mean(axis=0)) ** 2, axis=1)))
     assert 0.3 < info["rmse_mm"] < 0.6 * spread
     assert 30.0 < prm.L < 90.0
+    # the fit is a least-squares minimum: no small change of the free
+    # parameters (C, u0, L) lowers the sweep error
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        trial = dataclasses.replace(
+            prm,
+            C=prm.C + rng.normal(0.0, 1e-3, (2, 2)),
+            u0=prm.u0 + rng.normal(0.0, 1e-3, 2),
+            L=prm.L * (1.0 + rng.normal(0.0, 1e-3)),
+        )
+        trial_rmse = np.sqrt(np.mean(np.sum((pcc_tip(q[keep], trial) - p[keep]) ** 2, axis=1)))
+        assert trial_rmse >= info["rmse_mm"] * (1.0 - 1e-9)
     keep = ~np.isnan(p).any(axis=1)
     resid = np.linalg.norm(pcc_tip(q[keep], prm) - p[keep], axis=1)
     assert np.sqrt(np.mean(resid**2)) == pytest.approx(info["rmse_mm"], rel=1e-12)

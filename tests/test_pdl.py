@@ -1,5 +1,6 @@
 """Tests of skcath.backbones._pdl: the per-direction linear (PDL) backbone."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -476,6 +477,13 @@ def test_simulated_sweep_rmse(simulated):
     # which a static backbone cannot follow: still most of the motion explained
     assert rmse < 0.45 * _spread(p)
     assert info["rmse_mm"] < 0.45 * _spread(p)  # over the ray samples only
+    # each ray's coefficients are a least-squares minimum: no small change of
+    # them lowers the sweep error
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        coef = params.coef + rng.normal(0.0, 1e-4, params.coef.shape) * np.abs(params.coef).clip(1e-3)
+        trial = dataclasses.replace(params, coef=coef)
+        assert _rmse(pdl_tip(q, trial), p) >= rmse * (1.0 - 1e-7)
     assert info["converged"]
     assert np.all(np.isfinite(params.coef))
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._arrays import frozen_array
 from ._lm import levenberg_marquardt
 
 __all__ = [
@@ -229,15 +230,6 @@ def _rotvec(R):
 # ---------------------------------------------------------------------------
 # parameters
 # ---------------------------------------------------------------------------
-def _as_array(value, shape, name):
-    """Copy ``value`` to a read-only float array of ``shape``; the error names ``name``."""
-    arr = np.array(value, dtype=float)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}; got {arr.shape}.")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite; got {arr.tolist()}.")
-    arr.setflags(write=False)
-    return arr
 
 
 def _as_positive(value, name):
@@ -282,12 +274,12 @@ class PCCParams:
     R_g: np.ndarray
 
     def __post_init__(self):
-        object.__setattr__(self, "C", _as_array(self.C, (2, 2), "C"))
-        object.__setattr__(self, "q0", _as_array(self.q0, (2,), "q0"))
-        object.__setattr__(self, "u0", _as_array(self.u0, (2,), "u0"))
+        object.__setattr__(self, "C", frozen_array(self.C, (2, 2), "C"))
+        object.__setattr__(self, "q0", frozen_array(self.q0, (2,), "q0"))
+        object.__setattr__(self, "u0", frozen_array(self.u0, (2,), "u0"))
         object.__setattr__(self, "S_m", _as_positive(self.S_m, "S_m"))
         object.__setattr__(self, "L", _as_positive(self.L, "L"))
-        R = _as_array(self.R_g, (3, 3), "R_g")
+        R = frozen_array(self.R_g, (3, 3), "R_g")
         if not (np.allclose(R.T @ R, np.eye(3), atol=1e-8) and np.linalg.det(R) > 0.0):
             raise ValueError("R_g must be a rotation matrix (orthonormal, det +1).")
         object.__setattr__(self, "R_g", R)
@@ -644,7 +636,7 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
     q, p = q[keep], p[keep]
     if q0 is None:
         q0 = init.q0 if init is not None else np.zeros(2)
-    q0 = _as_array(q0, (2,), "q0")
+    q0 = frozen_array(q0, (2,), "q0")
     if S_m is None:
         if init is not None:
             S_m = init.S_m

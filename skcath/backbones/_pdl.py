@@ -56,6 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._arrays import frozen_array
 from ._lm import levenberg_marquardt
 
 __all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_tip"]
@@ -88,15 +89,6 @@ _SQRT_FLOOR = 1e-12
 # ---------------------------------------------------------------------------
 # parameters
 # ---------------------------------------------------------------------------
-def _frozen(value, shape, name):
-    """Read-only float copy of ``value`` with the given shape."""
-    arr = np.array(value, dtype=float, copy=True)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}; got {arr.shape}.")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite.")
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,19 +123,19 @@ class PDLParams:
     rho0: float
 
     def __post_init__(self):
-        p0 = _frozen(self.p0, (3,), "p0")
-        basis = _frozen(self.basis, (3, 3), "basis")
+        p0 = frozen_array(self.p0, (3,), "p0")
+        basis = frozen_array(self.basis, (3, 3), "basis")
         directions = np.array(self.directions, dtype=float, copy=True).ravel()
-        directions = _frozen(directions, directions.shape, "directions")
+        directions = frozen_array(directions, directions.shape, "directions")
         n_rays = len(directions)
         _check_directions(directions)
         if not np.isfinite(self.rho0):
             raise ValueError(f"rho0 must be finite; got {self.rho0!r}.")
         object.__setattr__(self, "p0", p0)
         object.__setattr__(self, "basis", basis)
-        object.__setattr__(self, "q_neutral", _frozen(self.q_neutral, (2,), "q_neutral"))
+        object.__setattr__(self, "q_neutral", frozen_array(self.q_neutral, (2,), "q_neutral"))
         object.__setattr__(self, "directions", directions)
-        object.__setattr__(self, "coef", _frozen(self.coef, (n_rays, _N_COEF), "coef"))
+        object.__setattr__(self, "coef", frozen_array(self.coef, (n_rays, _N_COEF), "coef"))
         object.__setattr__(self, "rho0", float(self.rho0))
 
     @property
