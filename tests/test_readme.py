@@ -164,3 +164,15 @@ def test_readme_backbone_example_runs(tmp_path, monkeypatch, capsys):
     match = re.search(r"PDL: ([0-9.]+) mm", out)
     assert match, out
     assert 0.5 < float(match.group(1)) < 30.0
+
+
+def test_readme_residual_example_runs(tmp_path, monkeypatch, capsys):
+    """The residual example trains, predicts, and beats its backbone on held-out settings."""
+    monkeypatch.setenv("SKCATH_DATA", str(tmp_path / "data"))
+    namespace = {}
+    exec(compile(_block_using("GRUResidual"), "README.md", "exec"), namespace)
+    out = capsys.readouterr().out
+    match = re.search(r"PDL ([0-9.]+) mm, PDL\+GRU ([0-9.]+) mm", out)
+    assert match, out
+    pdl, gru = float(match.group(1)), float(match.group(2))
+    assert 0.5 < gru < pdl < 30.0

@@ -18,7 +18,8 @@ from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
-from .._validation import check_recordings, check_target, run_codes, run_positions
+from .._base import RecordingsMixin
+from .._validation import check_recordings, run_codes, run_positions
 from ..sweep import check_sweep_references, find_rays
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
@@ -38,7 +39,7 @@ def _calibrate_run(backbone, run, q, ref, sweep):
     return backbone._evaluate(q, params), params, info
 
 
-class _BaseBackbone(TransformerMixin, RegressorMixin, BaseEstimator):
+class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstimator):
     """Shared machinery of the geometric backbones (not for direct use)."""
 
     _parameter_constraints: dict = {
@@ -142,38 +143,6 @@ class _BaseBackbone(TransformerMixin, RegressorMixin, BaseEstimator):
         names = list(self.feature_names_in_)
         return np.asarray([*names, *(c for c in BACKBONE_COLUMNS if c not in names)], dtype=object)
 
-    def score(self, X, y, sample_weight=None):
-        """Negated mean per-run RMSE (mm) over motion rows (greater is better).
-
-        Parameters
-        ----------
-        X : pandas.DataFrame
-            Recordings in the long format.
-        y : array-like of shape (n_samples, 3)
-            Measured tip positions (mm).
-        sample_weight : None
-            Not supported: runs have equal weights.
-
-        Returns
-        -------
-        score : float
-        """
-        from ..metrics import mean_per_run_rmse
-
-        if sample_weight is not None:
-            raise ValueError("sample_weight is not supported: the metric weights runs equally.")
-        y = check_target(y, len(X))
-        return -mean_per_run_rmse(y, self.predict(X), X)
-
-    def __sklearn_tags__(self):
-        tags = super().__sklearn_tags__()
-        tags.input_tags.allow_nan = True
-        tags.input_tags.string = True
-        tags.input_tags.categorical = True
-        tags.target_tags.required = False
-        tags.target_tags.multi_output = True
-        tags.target_tags.single_output = False
-        return tags
 
 
 def _at_neutral(q, ref, rays):

@@ -1,0 +1,683 @@
+"""Residual learners on top of a backbone: skorch nets over runs of recordings.
+
+The estimators are the last step of a :class:`~sklearn.pipeline.Pipeline`
+whose previous step is a backbone: they receive the recordings with the
+backbone's nominal tip ``b_x, b_y, b_z`` appended, learn the residual
+``e = y - b`` on the motion rows, and predict ``b + r`` with the applied
+residual ``r`` clipped per coordinate. Training is done by skorch
+(:class:`skorch.NeuralNetRegressor`) on windows cut from the motion sequences
+of every run; prediction runs every motion sequence from its start.
+"""
+
+from __future__ import annotations
+
+import copy
+from contextlib import contextmanager
+from numbers import Integral, Real
+
+import numpy as np
+import pandas as pd
+import torch
+from sklearn.exceptions import NotFittedError
+from sklearn.frozen import FrozenEstimator
+from sklearn.utils import check_random_state
+from sklearn.utils._param_validation import Interval, StrOptions, validate_parameter_constraints
+from skorch import NeuralNetRegressor
+from skorch.callbacks import EarlyStopping, LRScheduler, ProgressBar
+from skorch.dataset import Dataset
+from skorch.utils import to_tensor
+
+from .. import _format as fmt
+from .._base import RecordingsMixin
+from .._validation import check_recordings
+from ..backbones import BACKBONE_COLUMNS
+from ..sequences import from_padded, to_padded
+from ._features import (
+    Standardizer,
+    cut_windows,
+    feature_frame,
+    step_feature_names,
+    sweep_feature_names,
+)
+from ._modules import GRUResidualModule, MaskedNormalizedMSE, MLPResidualModule
+
+__all__ = ["GRUResidual", "MLPResidual", "check_backbone_columns", "nominal_tip"]
+
+
+def check_backbone_columns(X: pd.DataFrame, owner: str) -> None:
+    """Raise a clear error unless ``X`` carries finite backbone columns ``b_x, b_y, b_z``."""
+    missing = [c for c in BACKBONE_COLUMNS if c not in X.columns]
+    if missing:
+        raise ValueError(
+            f"{owner} needs the backbone's nominal tip position in the columns "
+            f"{list(BACKBONE_COLUMNS)}, but X has no column {missing}. Put a backbone "
+            f"before it: Pipeline([('backbone', PDLBackbone()), ('residual', {owner}())])."
+        )
+    for c in BACKBONE_COLUMNS:
+        values = pd.to_numeric(X[c], errors="coerce").to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"Column {c!r} must hold finite nominal tip positions (mm); row {i} "
+                f"(run {X[fmt.RUN].iloc[i]!r}) holds {X[c].iloc[i]!r}."
+            )
+
+
+def nominal_tip(X: pd.DataFrame) -> np.ndarray:
+    """The backbone columns ``b_x, b_y, b_z`` of ``X`` as an (n_samples, 3) float array (mm)."""
+    return np.column_stack(
+        [pd.to_numeric(X[c]).to_numpy(dtype=np.float64) for c in BACKBONE_COLUMNS]
+    )
+
+
+@contextmanager
+def _torch_runtime(n_threads, seed):
+    """Torch intra-op threads and a private, seeded random stream for one call."""
+    previous = torch.get_num_threads()
+    if n_threads is not None:
+        torch.set_num_threads(int(n_threads))
+    try:
+        if seed is None:
+            yield
+        else:
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(int(seed))
+                yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _silent(*args, **kwargs):
+    """Sink of the early-stopping message when ``verbose=0``."""
+
+
+class _SettingHoldout:
+    """Validation split that holds out whole shaft settings (all their repeats).
+
+    Called by the net with the window dataset; ``X["group"]`` holds the code of
+    the (catheter, setting) pair of every window.
+    """
+
+    def __init__(self, fraction, seed):
+        self.fraction = fraction
+        self.seed = seed
+
+    def __call__(self, dataset, y=None, **kwargs):
+        group = np.asarray(dataset.X["group"])
+        unique = np.unique(group)
+        if unique.size < 2:
+            raise ValueError(
+                "validation_fraction needs at least two shaft settings in the training "
+                f"data to hold one out, got {unique.size}."
+            )
+        n_valid = min(max(1, round(self.fraction * unique.size)), unique.size - 1)
+        rng = np.random.default_rng(self.seed)
+        held = rng.choice(unique, size=n_valid, replace=False)
+        is_valid = np.isin(group, held)
+        train = torch.utils.data.Subset(dataset, np.flatnonzero(~is_valid).tolist())
+        valid = torch.utils.data.Subset(dataset, np.flatnonzero(is_valid).tolist())
+        return train, valid
+
+
+class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
+    """Shared machinery of the residual learners (not for direct use)."""
+
+    _target_required = True
+
+    _parameter_constraints: dict = {
+        "window": [Interval(Integral, 2, None, closed="left"), None],
+        "window_step": [Interval(Integral, 1, None, closed="left"), None],
+        "burn_in": [Interval(Integral, 0, None, closed="left")],
+        "sweep_stride": [Interval(Integral, 1, None, closed="left")],
+        "use_torque": ["boolean"],
+        "use_context": ["boolean"],
+        "clip": [Interval(Real, 0, None, closed="neither"), None],
+        "validation_fraction": [Interval(Real, 0, 1, closed="neither"), None],
+        "n_iter_no_change": [Interval(Integral, 1, None, closed="left")],
+        "n_threads": [Interval(Integral, 1, None, closed="left"), None],
+        "random_state": ["random_state"],
+        "max_epochs": [Interval(Integral, 0, None, closed="left")],
+        "batch_size": [Interval(Integral, 1, None, closed="left"), StrOptions({"-1"})],
+        "lr": [Interval(Real, 0, None, closed="neither")],
+        "lr_schedule": [StrOptions({"cosine", "constant"})],
+    }
+
+    def __init__(
+        self,
+        module,
+        *,
+        criterion=MaskedNormalizedMSE,
+        optimizer=torch.optim.Adam,
+        lr=1e-2,
+        lr_schedule="cosine",
+        max_epochs=40,
+        batch_size=64,
+        window=200,
+        window_step=None,
+        burn_in=50,
+        sweep_stride=20,
+        use_torque=True,
+        use_context=True,
+        clip=25.0,
+        pretrained=None,
+        validation_fraction=None,
+        n_iter_no_change=5,
+        n_threads=None,
+        random_state=None,
+        train_split=None,
+        verbose=0,
+        **kwargs,
+    ):
+        kwargs.setdefault("iterator_train__shuffle", True)
+        kwargs.setdefault("optimizer__weight_decay", 1e-4)
+        super().__init__(
+            module,
+            criterion=criterion,
+            optimizer=optimizer,
+            lr=lr,
+            max_epochs=max_epochs,
+            batch_size=batch_size,
+            train_split=train_split,
+            verbose=verbose,
+            **kwargs,
+        )
+        self.lr_schedule = lr_schedule
+        self.window = window
+        self.window_step = window_step
+        self.burn_in = burn_in
+        self.sweep_stride = sweep_stride
+        self.use_torque = use_torque
+        self.use_context = use_context
+        self.clip = clip
+        self.pretrained = pretrained
+        self.validation_fraction = validation_fraction
+        self.n_iter_no_change = n_iter_no_change
+        self.n_threads = n_threads
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ skorch hooks
+    def get_default_callbacks(self):
+        callbacks = list(super().get_default_callbacks())
+        if self.lr_schedule == "cosine":
+            callbacks.append(
+                (
+                    "lr_scheduler",
+                    LRScheduler(
+                        policy=torch.optim.lr_scheduler.CosineAnnealingLR,
+                        # validated in fit; a bad value must not break set_params
+                        T_max=self.max_epochs
+                        if isinstance(self.max_epochs, Integral) and self.max_epochs > 0
+                        else 1,
+                    ),
+                )
+            )
+        if self.validation_fraction is not None:
+            callbacks.append(
+                (
+                    "early_stopping",
+                    EarlyStopping(
+                        monitor="valid_loss",
+                        patience=self.n_iter_no_change,
+                        load_best=True,
+                        sink=print if self.verbose else _silent,
+                    ),
+                )
+            )
+        if self.verbose:
+            callbacks.append(("progress_bar", ProgressBar()))
+        return callbacks
+
+    def initialize_module(self):
+        kwargs = self.get_params_for("module")
+        kwargs.update(
+            n_features=len(step_feature_names(self.use_torque)),
+            n_sweep_features=len(sweep_feature_names(self.use_torque)),
+            use_context=self.use_context,
+        )
+        self.module_ = self.initialized_instance(self.module, kwargs)
+        return self
+
+    def get_split_datasets(self, X, y=None, **fit_params):
+        if self.validation_fraction is None:
+            return super().get_split_datasets(X, y, **fit_params)
+        dataset = self.get_dataset(X, y)
+        return _SettingHoldout(self.validation_fraction, self._split_seed_)(dataset)
+
+    def infer(self, x, **fit_params):
+        x = to_tensor(x, device=self.device)
+        if not isinstance(x, dict) or "features" not in x:
+            raise TypeError(
+                f"{type(self).__name__} takes recordings in the long format (a DataFrame) "
+                "in fit and predict; got data that was not prepared from recordings."
+            )
+        return self.module_(x["features"], x.get("sweep"), x.get("sweep_length"))
+
+    def get_loss(self, y_pred, y_true, X=None, training=False):
+        y_true = to_tensor(y_true, device=self.device)
+        mask = to_tensor(X["mask"], device=self.device)
+        return self.criterion_(y_pred, y_true, mask)
+
+    # ------------------------------------------------------------------ validation
+    def _validate_own_params(self):
+        params = {key: getattr(self, key) for key in self._parameter_constraints}
+        validate_parameter_constraints(
+            self._parameter_constraints, params, caller_name=type(self).__name__
+        )
+        if self.window is not None and self.burn_in >= self.window:
+            raise ValueError(
+                f"burn_in must be smaller than window; got burn_in={self.burn_in}, "
+                f"window={self.window}."
+            )
+        if self.window_step is not None and (
+            self.window is None or self.window_step > self.window
+        ):
+            raise ValueError(
+                "window_step must be at most window so that the windows cover every "
+                f"motion step; got window_step={self.window_step}, window={self.window}."
+            )
+
+    def _check_X(self, X, y=None):
+        X, y = check_recordings(X, y)
+        check_backbone_columns(X, type(self).__name__)
+        return X, y
+
+    def _pretrained_source(self):
+        """The fitted residual whose weights and statistics start training, or None."""
+        source = self.pretrained
+        if source is None:
+            return None
+        if isinstance(source, FrozenEstimator):
+            source = source.estimator
+        if type(source) is not type(self):
+            raise TypeError(
+                f"pretrained must be a fitted {type(self).__name__} (optionally wrapped in "
+                f"sklearn.frozen.FrozenEstimator), got {type(source).__name__}."
+            )
+        if not getattr(source, "initialized_", False) or not hasattr(source, "sigma_e_"):
+            raise NotFittedError(
+                f"pretrained is an unfitted {type(self).__name__}. Fit it first; inside "
+                "cross_validate or GridSearchCV wrap it in sklearn.frozen.FrozenEstimator, "
+                "because clone() drops the weights of a plain fitted estimator."
+            )
+        for key in ("use_torque", "use_context"):
+            if getattr(source, key) != getattr(self, key):
+                raise ValueError(
+                    f"pretrained was fitted with {key}={getattr(source, key)!r} but this "
+                    f"estimator has {key}={getattr(self, key)!r}; they must match."
+                )
+        return source
+
+    # ------------------------------------------------------------------ data
+    def _sequences(self, X, y=None):
+        """Normalised padded motion features, sweep context input, and targets."""
+        F, _, _ = feature_frame(X)
+        x_names = step_feature_names(self.use_torque)
+        s_names = sweep_feature_names(self.use_torque)
+        e = None
+        if y is not None:
+            e = y - F[list(BACKBONE_COLUMNS)].to_numpy()
+        motion = to_padded(F, x_names, y=e, phase=fmt.MOTION)
+        sweep = to_padded(F, s_names, phase=fmt.SWEEP)
+        return F, motion, sweep
+
+    def _fit_statistics(self, F, motion, sweep, y):
+        x_names = list(step_feature_names(self.use_torque))
+        s_names = list(sweep_feature_names(self.use_torque))
+        is_motion = (F[fmt.PHASE] == fmt.MOTION).to_numpy()
+        is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        e = y[is_motion] - F.loc[is_motion, list(BACKBONE_COLUMNS)].to_numpy()
+        finite = np.isfinite(e).all(axis=1)
+        if not finite.any():
+            raise ValueError(
+                "y has no finite tip position on a motion row: the residual learner "
+                "needs measured tip positions during motion to learn from."
+            )
+        self.x_scaler_ = Standardizer.fit(F.loc[is_motion, x_names].to_numpy())
+        self.s_scaler_ = Standardizer.fit(F.loc[is_sweep, s_names].to_numpy())
+        sigma = e[finite].std(axis=0)
+        self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
+
+    def _context_input(self, sweep):
+        """Normalised sweep subsampled at ``sweep_stride``, and its valid lengths."""
+        stride = self.sweep_stride
+        values = self.s_scaler_.transform(sweep.values[:, ::stride]).astype(np.float32)
+        lengths = -(-sweep.lengths // stride)  # ceil division
+        valid = np.arange(values.shape[1])[None, :] < lengths[:, None]
+        values[~valid] = 0.0
+        return values, np.maximum(lengths, 1).astype(np.int64)
+
+    def _training_windows(self, X, motion, sweep):
+        """Inputs and targets of the training windows, one item per window."""
+        features = self.x_scaler_.transform(motion.values).astype(np.float32)
+        features[~motion.mask] = 0.0
+        target = (motion.target / self.sigma_e_).astype(np.float32)
+        sweep_values, sweep_lengths = self._context_input(sweep)
+        step = self.window_step
+        if step is None and self.window is not None:
+            step = max(self.window - self.burn_in, 1)
+        run_index, start = cut_windows(motion.lengths, self.window, step)
+        if run_index.size == 0:
+            raise ValueError("No run of X has motion rows to train on.")
+        width = motion.max_length if self.window is None else self.window
+        steps = start[:, None] + np.arange(width)[None, :]
+        inside = steps < motion.lengths[run_index][:, None]
+        steps = np.minimum(steps, motion.max_length - 1)
+        rows = run_index[:, None]
+        window_features = np.where(inside[..., None], features[rows, steps], 0.0)
+        window_target = np.where(inside[..., None], target[rows, steps], 0.0)
+        loss_mask = inside & motion.target_mask[rows, steps]
+        # Windows that start inside a run begin from a zero hidden state that
+        # the run never had: their first burn_in steps only warm the state up.
+        warm = (start > 0)[:, None] & (np.arange(width)[None, :] < self.burn_in)
+        loss_mask &= ~warm
+        group = _setting_codes(X, motion.runs)[run_index]
+        data = {
+            "features": window_features.astype(np.float32),
+            "mask": loss_mask.astype(np.float32),
+            "group": group.astype(np.int64),
+        }
+        if self.use_context:
+            data["sweep"] = sweep_values[run_index]
+            data["sweep_length"] = sweep_lengths[run_index]
+        return data, window_target.astype(np.float32)
+
+    # ------------------------------------------------------------------ public API
+    def fit(self, X, y, **fit_params):
+        """Learn the residual ``e = y - b`` on the motion rows.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format with the backbone columns ``b_x``,
+            ``b_y``, ``b_z`` (the output of a backbone's ``transform``).
+        y : array-like of shape (n_samples, 3)
+            Measured tip positions (mm); only motion rows are used, NaN rows
+            (tracker dropouts) are skipped.
+        **fit_params : dict
+            Passed to skorch's ``partial_fit``.
+
+        Returns
+        -------
+        self : object
+        """
+        self._validate_own_params()
+        if y is None:
+            raise ValueError(
+                f"{type(self).__name__} requires y to be passed, but the target y is "
+                "None: fit needs the tip positions y."
+            )
+        if not self.warm_start or not self.initialized_:
+            seed = self._seed()
+            with _torch_runtime(self.n_threads, seed):
+                self.initialize()
+                source = self._pretrained_source()
+                if source is not None:
+                    self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
+                    self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
+                    self.sigma_e_ = source.sigma_e_.copy()
+                else:
+                    for name in ("x_scaler_", "s_scaler_", "sigma_e_"):
+                        self.__dict__.pop(name, None)
+        return self.partial_fit(X, y, **fit_params)
+
+    def partial_fit(self, X, y, classes=None, **fit_params):
+        """Train for ``max_epochs`` more epochs without re-initialising the network.
+
+        Normalisation statistics are computed on the first call (or taken
+        from ``pretrained``) and kept afterwards. Parameters as in :meth:`fit`.
+        """
+        self._validate_own_params()
+        if y is None:
+            raise ValueError(
+                f"{type(self).__name__} requires y to be passed, but the target y is "
+                "None: partial_fit needs the tip positions y."
+            )
+        if not self.initialized_:
+            # the first call initialises as fit does, from pretrained if given
+            return self.fit(X, y, **fit_params)
+        X, y = self._check_X(X, y)
+        F, motion, sweep = self._sequences(X, y)
+        if not hasattr(self, "sigma_e_"):
+            self._fit_statistics(F, motion, sweep, y)
+        data, target = self._training_windows(X, motion, sweep)
+        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
+        self.n_features_in_ = X.shape[1]
+        seed = self._seed()
+        self._split_seed_ = None if seed is None else seed + 1
+        if seed is not None and self.initialized_:
+            seed += len(self.history_ or [])
+        with _torch_runtime(self.n_threads, seed):
+            super().partial_fit(data, target, **fit_params)
+        return self
+
+    def _seed(self):
+        if self.random_state is None:
+            return None
+        if isinstance(self.random_state, Integral):
+            return int(self.random_state)
+        return int(check_random_state(self.random_state).randint(2**31 - 1))
+
+    def predict_residual(self, X):
+        """Applied residual ``r`` (mm) of every row: clipped on motion rows, 0 on sweep rows.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format with the backbone columns.
+
+        Returns
+        -------
+        r : ndarray of shape (n_samples, 3)
+        """
+        if not self.initialized_ or not hasattr(self, "sigma_e_"):
+            raise NotFittedError(
+                f"This {type(self).__name__} instance is not fitted yet; call fit first."
+            )
+        X, _ = self._check_X(X)
+        F, motion, sweep = self._sequences(X)
+        if motion.max_length == 0:  # no motion row: nothing to correct
+            return np.zeros((len(X), 3))
+        data = {"features": self.x_scaler_.transform(motion.values).astype(np.float32)}
+        data["features"][~motion.mask] = 0.0
+        if self.use_context:
+            data["sweep"], data["sweep_length"] = self._context_input(sweep)
+        # fork_rng: iterating a DataLoader draws a seed from torch's global
+        # generator, which prediction must leave alone
+        with _torch_runtime(self.n_threads, None), torch.random.fork_rng(devices=[]):
+            out = self.forward(Dataset(data, None)).numpy().astype(np.float64)
+        r = out * self.sigma_e_
+        if self.clip is not None:
+            r = np.clip(r, -self.clip, self.clip)
+        r_rows = from_padded(r, motion)
+        return np.where(np.isnan(r_rows), 0.0, r_rows)
+
+    def predict(self, X):
+        """Tip position ``b + r`` (mm): the backbone's nominal tip plus the residual.
+
+        Motion rows get the learned, clipped residual; sweep rows, where the
+        network does not run, get the nominal tip ``b``.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format with the backbone columns.
+
+        Returns
+        -------
+        y_pred : ndarray of shape (n_samples, 3)
+        """
+        return self.predict_residual(X) + nominal_tip(X)
+
+
+
+def _setting_codes(X, runs):
+    """Code of the (catheter, setting) pair of every run, for group-aware validation."""
+    cols = [c for c in (fmt.CATHETER, fmt.SETTING) if c in X.columns]
+    first = X.groupby(fmt.RUN, observed=True, sort=False)[cols].first()
+    keys = first.loc[list(runs)].astype(str).agg("/".join, axis=1)
+    return pd.factorize(keys)[0]
+
+
+_COMMON_PARAMS = """
+    lr : float, default=1e-2
+        Initial Adam learning rate (annealed, see ``lr_schedule``). The
+        paper's two stages use 1e-3 (pretraining) and 5e-4 (fine-tuning).
+    lr_schedule : {"cosine", "constant"}, default="cosine"
+        Learning rate over the epochs of one ``fit`` call: cosine annealing
+        from ``lr`` towards 0 at ``max_epochs``, or constant.
+    max_epochs : int, default=40
+        Passes over the training windows per call of ``fit``.
+    batch_size : int, default=64
+        Windows per optimisation step (and runs per batch in ``predict``).
+    window : int or None, default=200
+        Length of the training windows (motion steps). Whole motion sequences
+        are cut into overlapping windows so that a batch holds many of them;
+        None trains on whole sequences (one item per run).
+    window_step : int, default=None
+        Distance between window starts; defaults to ``window - burn_in``.
+    burn_in : int, default=50
+        Leading steps of a window that starts inside a run, excluded from the
+        loss: they warm the hidden state up from zero. Windows that start at
+        the beginning of a motion sequence count from step 0, as in prediction.
+    sweep_stride : int, default=20
+        Subsampling stride of the sweep sequence fed to the context encoder.
+    use_torque : bool, default=True
+        Include the drive torques in the step features and the sweep features.
+    use_context : bool, default=True
+        Condition on the sweep context ``z``; without it ``v = x``.
+    clip : float or None, default=25.0
+        Bound of the applied residual per coordinate (mm); None disables.
+    pretrained : fitted estimator of the same class, FrozenEstimator, or None
+        Start from its weights and normalisation statistics instead of a
+        random initialisation (fine-tuning). Use
+        ``sklearn.frozen.FrozenEstimator(fitted)`` inside ``cross_validate``
+        or ``GridSearchCV``, whose ``clone`` drops the weights of a plain
+        fitted estimator.
+    validation_fraction : float or None, default=None
+        Fraction of the training shaft settings (all repeats of a setting
+        together) held out as validation data for early stopping; the best
+        weights are restored at the end. None trains on all data for
+        ``max_epochs``.
+    n_iter_no_change : int, default=5
+        Early-stopping patience (epochs) when ``validation_fraction`` is set.
+    n_threads : int or None, default=None
+        Torch intra-op threads during ``fit`` and ``predict`` (restored
+        afterwards); None keeps torch's setting. Use 1 when folds run in
+        parallel.
+    random_state : int, RandomState instance or None, default=None
+        Seeds weight initialisation, batch order and the validation split;
+        with an int, repeated fits on the CPU give identical predictions.
+    verbose : int, default=0
+        0 is silent; 1 prints skorch's epoch table and a progress bar.
+    **kwargs
+        Any other :class:`skorch.NeuralNetRegressor` parameter, e.g.
+        ``module__hidden_size``, ``device``, ``callbacks`` or
+        ``warm_start``. ``optimizer__weight_decay`` (L2 penalty of Adam)
+        defaults to 1e-4 and ``iterator_train__shuffle`` to True."""
+
+_COMMON_ATTRIBUTES = """
+    module_ : torch.nn.Module
+        The trained network (returns the normalised residual ``F``).
+    x_scaler_, s_scaler_ : Standardizer
+        Means and standard deviations of the step features (training motion
+        rows) and of the sweep features (training sweep rows).
+    sigma_e_ : ndarray of shape (3,)
+        Standard deviation of the training residual ``e`` per coordinate (mm).
+    history_ : skorch.History
+        Per-epoch training (and validation) loss.
+    feature_names_in_ : ndarray of str
+    n_features_in_ : int"""
+
+
+class GRUResidual(_ResidualNet):
+    __doc__ = f"""Sweep-context GRU residual learner (the paper's estimator).
+
+    For every run, the normalised sweep features ``s = [q, tau]``, subsampled
+    at ``sweep_stride``, are encoded once into a context ``z``. Along the
+    motion sequence, the per-step features
+
+    .. math::
+
+        x_t = [q_t, \\Delta q_t, \\tau_t, b_t] \\in \\mathbb{{R}}^9
+
+    (motor angles in degrees, their per-sample differences, drive torques and
+    the backbone's nominal tip in mm) are normalised with training means and
+    standard deviations and, with ``z``, drive a GRU whose hidden state starts
+    from zero at the first motion sample:
+
+    .. math::
+
+        h_t = \\mathrm{{GRU}}([\\bar x_t; z], h_{{t-1}}), \\quad
+        \\hat e_t = \\sigma_e \\odot H(h_t), \\quad
+        \\hat p_t = b_t + \\mathrm{{clip}}(\\hat e_t, \\pm 25\\,\\mathrm{{mm}}).
+
+    Training minimises the masked normalised residual loss
+    ``sum m ||F - e / sigma_e||^2 / (3 sum m)`` with Adam on windows cut from
+    the motion sequences (:class:`MaskedNormalizedMSE`); padding, tracker
+    dropouts and burn-in steps are masked.
+
+    Parameters
+    ----------
+    module : torch.nn.Module class, default=GRUResidualModule
+        The network; its parameters are set with ``module__*`` (e.g.
+        ``module__hidden_size=64``, ``module__context_size=16``,
+        ``module__num_layers``, ``module__encoder_hidden_size``,
+        ``module__head_hidden_size``). The input sizes and ``use_context``
+        are set by the estimator.{_COMMON_PARAMS}
+
+    Attributes
+    ----------{_COMMON_ATTRIBUTES}
+
+    See Also
+    --------
+    MLPResidual : the same inputs without recurrence.
+    NoResidual : the backbone alone, for baselines in the same grid.
+
+    Notes
+    -----
+    Two-stage training as in the paper: pretrain with ``lr=1e-3`` on data
+    that excludes the test runs, then fine-tune with
+    ``GRUResidual(lr=5e-4, pretrained=FrozenEstimator(pretrained_model))``.
+    Fine-tuning keeps the pretrained normalisation statistics.
+
+    Examples
+    --------
+    >>> from sklearn.pipeline import Pipeline
+    >>> from skcath.backbones import PDLBackbone
+    >>> from skcath.residuals import GRUResidual
+    >>> pipe = Pipeline([("backbone", PDLBackbone()),
+    ...                  ("residual", GRUResidual(random_state=0))])
+    >>> pipe.fit(X_train, y_train).predict(X_test)  # doctest: +SKIP
+    """
+
+    def __init__(self, module=GRUResidualModule, **kwargs):
+        super().__init__(module, **kwargs)
+
+
+class MLPResidual(_ResidualNet):
+    __doc__ = f"""Per-step MLP residual learner (the paper's ablation of the GRU).
+
+    The same inputs as :class:`GRUResidual` (step features ``[q, dq, tau, b]``
+    and the sweep context ``z``), mapped step by step by an MLP without
+    recurrence: ``e_t = sigma_e * MLP([x_t; z])``. Training and prediction
+    are as for :class:`GRUResidual`; ``window`` only groups steps into
+    batches.
+
+    Parameters
+    ----------
+    module : torch.nn.Module class, default=MLPResidualModule
+        The network; ``module__hidden_size``, ``module__num_layers``,
+        ``module__context_size``, ``module__encoder_hidden_size``.{_COMMON_PARAMS}
+
+    Attributes
+    ----------{_COMMON_ATTRIBUTES}
+
+    See Also
+    --------
+    GRUResidual : the recurrent learner.
+    """
+
+    def __init__(self, module=MLPResidualModule, **kwargs):
+        kwargs.setdefault("burn_in", 0)
+        super().__init__(module, **kwargs)

@@ -1,0 +1,172 @@
+"""Input features of the residual learners (paper eqs. "features" and "context").
+
+Pure numpy functions: per-step motion features ``x = [q, dq, tau, b]``, sweep
+features ``s = [q, tau]`` subsampled at a fixed stride, featurewise
+normalisation statistics, and the training windows cut from the motion
+sequences. Nothing here depends on torch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .. import _format as fmt
+from .._validation import group_positions, run_codes
+from ..backbones import BACKBONE_COLUMNS
+
+__all__ = [
+    "DELTA_COLUMNS",
+    "Standardizer",
+    "cut_windows",
+    "motor_deltas",
+    "step_feature_names",
+    "sweep_feature_names",
+]
+
+#: Names of the per-sample motor-angle differences (degrees per sample).
+DELTA_COLUMNS = ("dq1", "dq2")
+
+
+def step_feature_names(use_torque: bool = True) -> tuple[str, ...]:
+    """Names of the per-step features ``x_t``, in the order the network sees them.
+
+    ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]`` (9 features), without the
+    torques when ``use_torque`` is False (7 features).
+    """
+    torque = fmt.TORQUE_COLUMNS if use_torque else ()
+    return (*fmt.MOTOR_COLUMNS, *DELTA_COLUMNS, *torque, *BACKBONE_COLUMNS)
+
+
+def sweep_feature_names(use_torque: bool = True) -> tuple[str, ...]:
+    """Names of the sweep features ``s_k``: ``[q1, q2, tau1, tau2]`` or ``[q1, q2]``."""
+    torque = fmt.TORQUE_COLUMNS if use_torque else ()
+    return (*fmt.MOTOR_COLUMNS, *torque)
+
+
+def motor_deltas(q: np.ndarray, codes: np.ndarray, n_runs: int) -> np.ndarray:
+    """Per-sample motor-angle differences ``dq_t = q_t - q_{t-1}`` within each run.
+
+    Parameters
+    ----------
+    q : ndarray of shape (n_rows, 2)
+        Motor angles (degrees), rows of a run in time order (runs may interleave).
+    codes : ndarray of int, shape (n_rows,)
+        Run code of every row (from :func:`skcath._validation.run_codes`).
+    n_runs : int
+        Number of runs.
+
+    Returns
+    -------
+    dq : ndarray of shape (n_rows, 2)
+        Difference to the previous row of the same run (degrees); 0 on the
+        first row of every run. The first motion row differs from the last
+        sweep row, so the motion sequence starts with the true step.
+    """
+    order, bounds = group_positions(codes, n_runs)
+    q_sorted = q[order]
+    d = np.zeros_like(q_sorted)
+    d[1:] = q_sorted[1:] - q_sorted[:-1]
+    d[bounds[:-1][np.diff(bounds) > 0]] = 0.0  # first row of every run
+    dq = np.empty_like(d)
+    dq[order] = d
+    return dq
+
+
+@dataclass(frozen=True)
+class Standardizer:
+    """Featurewise mean and standard deviation, ``(v - mean) / scale``.
+
+    Attributes
+    ----------
+    mean : ndarray of shape (n_features,)
+    scale : ndarray of shape (n_features,)
+        Standard deviation, floored at ``1e-6`` times the largest one (and at
+        ``1e-12``) so that a constant feature maps to 0 instead of dividing by 0.
+    """
+
+    mean: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def fit(cls, values: np.ndarray) -> "Standardizer":
+        """Statistics of the rows of ``values`` (n_rows, n_features); NaN rows are ignored."""
+        values = np.asarray(values, dtype=np.float64)
+        finite = np.isfinite(values).all(axis=1)
+        if not finite.any():
+            raise ValueError("Cannot compute normalisation statistics: no finite row.")
+        v = values[finite]
+        mean = v.mean(axis=0)
+        std = v.std(axis=0)
+        floor = max(1e-12, 1e-6 * float(std.max()))
+        return cls(mean=mean, scale=np.maximum(std, floor))
+
+    def transform(self, values: np.ndarray) -> np.ndarray:
+        """Normalised copy of ``values`` (any leading shape, last axis features)."""
+        return (values - self.mean.astype(values.dtype)) / self.scale.astype(values.dtype)
+
+
+def cut_windows(lengths: np.ndarray, window: int | None, step: int | None = None):
+    """Start of every training window of the motion sequences.
+
+    Each run's motion sequence of length ``n`` is tiled by windows of
+    ``window`` steps placed every ``step`` steps from step 0; the last window
+    is aligned to the end of the run so that every step is covered. A run
+    shorter than ``window`` gives one window holding the whole run (padded by
+    the caller).
+
+    Parameters
+    ----------
+    lengths : ndarray of int, shape (n_runs,)
+        Motion length of every run (steps).
+    window : int or None
+        Window length (steps); None means one window per run of the longest
+        run's length (whole sequences).
+    step : int, optional
+        Distance between window starts; defaults to ``window`` (no overlap).
+
+    Returns
+    -------
+    run_index : ndarray of int, shape (n_windows,)
+        Run of every window.
+    start : ndarray of int, shape (n_windows,)
+        First motion step of every window.
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    if window is None:
+        keep = np.flatnonzero(lengths > 0)
+        return keep, np.zeros(keep.size, dtype=np.int64)
+    step = window if step is None else step
+    runs, starts = [], []
+    for k, n in enumerate(lengths):
+        if n <= 0:
+            continue
+        last = max(int(n) - window, 0)
+        s = np.arange(0, last + 1, step, dtype=np.int64)
+        if s[-1] != last:
+            s = np.append(s, last)
+        runs.append(np.full(s.size, k, dtype=np.int64))
+        starts.append(s)
+    if not runs:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return np.concatenate(runs), np.concatenate(starts)
+
+
+def feature_frame(X: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """Recordings with the ``dq1``, ``dq2`` columns added, plus run codes and ids.
+
+    ``X`` must be a checked long-format frame with the backbone columns.
+    """
+    codes, runs = run_codes(X)
+    q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
+    dq = motor_deltas(q, codes, len(runs))
+    keep = [*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE]
+    keep = [c for c in keep if c in X.columns]
+    F = X[keep].copy()
+    for name in (*fmt.MOTOR_COLUMNS, *fmt.TORQUE_COLUMNS, *BACKBONE_COLUMNS):
+        F[name] = X[name].to_numpy(dtype=np.float64)
+    F[DELTA_COLUMNS[0]] = dq[:, 0]
+    F[DELTA_COLUMNS[1]] = dq[:, 1]
+    return F, codes, runs

@@ -1,0 +1,1052 @@
+"""Tests of the residual learners GRUResidual, MLPResidual and NoResidual.
+
+The learners are the last step of a pipeline whose backbone appends the
+nominal tip ``b_x, b_y, b_z``; they learn ``e = y - b`` on the motion rows and
+predict ``b + clip(r)``. These tests check the feature helpers and the torch
+modules on their own, then the behaviour a user relies on: sweep rows keep
+``b``, the applied residual is bounded, motion references and other runs are
+never read, prediction is causal, seeding is reproducible and leaves torch's
+global state alone, fine-tuning from a pretrained model, warm starts,
+validation that holds out whole shaft settings, clear errors, and the
+scikit-learn tools (Pipeline, clone, pickling, cross_validate, GridSearchCV).
+
+The networks are tiny and train for one or two epochs on shortened runs, so
+nothing here depends on a trained model's accuracy, except
+``test_gru_beats_its_backbone_on_held_out_settings``.
+"""
+
+import io
+import pickle
+
+import joblib
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from numpy.testing import assert_allclose, assert_array_equal
+from sklearn.base import clone
+from sklearn.exceptions import NotFittedError
+from sklearn.frozen import FrozenEstimator
+from sklearn.model_selection import GridSearchCV, GroupKFold, cross_validate
+from sklearn.pipeline import Pipeline
+from skorch.callbacks import Callback
+
+from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
+from skcath.datasets import make_benchmark
+from skcath.metrics import mean_per_run_rmse, per_run_rmse, run_rmse_scorer
+from skcath.residuals import (
+    GRUResidual,
+    GRUResidualModule,
+    MaskedNormalizedMSE,
+    MLPResidual,
+    MLPResidualModule,
+    NoResidual,
+    Standardizer,
+    SweepEncoder,
+    step_feature_names,
+    sweep_feature_names,
+)
+from skcath.residuals._features import cut_windows, feature_frame, motor_deltas
+
+LEARNERS = [GRUResidual, MLPResidual]
+B = list(BACKBONE_COLUMNS)
+REF = ["ref_x", "ref_y", "ref_z"]
+# Three shaft settings (one low, two high bends) and the motion rows kept of each run.
+SMALL_SETTINGS = ["S02", "S09", "S13"]
+N_MOTION = 300
+
+
+# ---------------------------------------------------------------------------
+# data and estimators
+# ---------------------------------------------------------------------------
+def _tiny(Est, **params):
+    """A residual learner small enough to train in well under a second."""
+    base = dict(
+        max_epochs=2,
+        batch_size=16,
+        window=50,
+        burn_in=10,
+        sweep_stride=50,
+        n_threads=1,
+        random_state=0,
+        module__hidden_size=8,
+        module__encoder_hidden_size=8,
+        module__context_size=4,
+    )
+    if Est is GRUResidual:
+        base["module__head_hidden_size"] = 8
+    base.update(params)
+    return Est(**base)
+
+
+def _runs(X):
+    """Run ids in order of first appearance."""
+    return list(dict.fromkeys(X["run"].astype(str).tolist()))
+
+
+def _motion(X):
+    return (X["phase"] == "motion").to_numpy()
+
+
+def _shorten(X, settings, n_motion):
+    """Boolean rows: the runs of ``settings``, sweep and first ``n_motion`` motion rows."""
+    motion = _motion(X)
+    rank = pd.Series(motion, index=X.index).groupby(X["run"], observed=True).cumsum()
+    keep = X["setting"].isin(settings).to_numpy() & (~motion | (rank.to_numpy() <= n_motion))
+    return keep
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    home = tmp_path_factory.mktemp("skcath_data")
+    return make_benchmark(n_catheters=1, n_runs=1, cache=True, data_home=home)
+
+
+@pytest.fixture(scope="module")
+def transformed(bench):
+    """The PDL backbone's output for all 17 runs (computed once)."""
+    return PDLBackbone().fit(bench.X).transform(bench.X)
+
+
+@pytest.fixture(scope="module")
+def small(bench, transformed):
+    """(X, Xb, y): three shortened runs, raw and with the backbone columns."""
+    keep = _shorten(bench.X, SMALL_SETTINGS, N_MOTION)
+    return bench.X[keep], transformed[keep], bench.y[keep]
+
+
+@pytest.fixture(scope="module")
+def fitted(small):
+    """Lazily fitted tiny learners on ``small`` and their (read-only) predictions."""
+    _, Xb, y = small
+    cache = {}
+
+    def get(Est):
+        if Est not in cache:
+            est = _tiny(Est).fit(Xb, y)
+            pred = est.predict(Xb)
+            pred.flags.writeable = False
+            cache[Est] = (est, pred)
+        return cache[Est]
+
+    return get
+
+
+def _with_repeat(Xb, y, setting):
+    """``Xb`` plus a second repeat of the run of ``setting`` (slightly different motion)."""
+    rows = (Xb["setting"] == setting).to_numpy()
+    extra = Xb[rows].copy()
+    extra["run"] = extra["run"].astype(str).str.replace("-R1", "-R2")
+    extra.loc[_motion(extra), "q1"] += 0.5
+    out = pd.concat([Xb.astype({"run": str}), extra], ignore_index=True)
+    return out, np.vstack([y, y[rows]])
+
+
+# ---------------------------------------------------------------------------
+# features
+# ---------------------------------------------------------------------------
+def test_feature_names():
+    assert step_feature_names() == (
+        "q1", "q2", "dq1", "dq2", "tau1", "tau2", "b_x", "b_y", "b_z"
+    )  # fmt: skip
+    assert step_feature_names(use_torque=False) == ("q1", "q2", "dq1", "dq2", "b_x", "b_y", "b_z")
+    assert sweep_feature_names() == ("q1", "q2", "tau1", "tau2")
+    assert sweep_feature_names(use_torque=False) == ("q1", "q2")
+
+
+def test_motor_deltas_with_interleaved_runs():
+    # rows of runs 0 and 1 interleaved, run 2 has no row, run 3 one row
+    codes = np.array([0, 1, 0, 1, 0, 3, 1])
+    q = np.array([[0, 10], [5, 50], [1, 12], [7, 49], [4, 11], [9, 9], [6, 40]], dtype=float)
+    dq = motor_deltas(q, codes, 4)
+    expected = np.array([[0, 0], [0, 0], [1, 2], [2, -1], [3, -1], [0, 0], [-1, -9]], dtype=float)
+    assert_array_equal(dq, expected)
+    # the same rows stored run after run give the same differences
+    order = np.argsort(codes, kind="stable")
+    assert_array_equal(motor_deltas(q[order], codes[order], 4), expected[order])
+
+
+def test_first_motion_step_continues_from_the_sweep(small):
+    _, Xb, _ = small
+    F, codes, runs = feature_frame(Xb)
+    assert len(runs) == len(SMALL_SETTINGS)
+    motion = _motion(Xb)
+    q = Xb[["q1", "q2"]].to_numpy()
+    dq = F[["dq1", "dq2"]].to_numpy()
+    for k in range(len(runs)):
+        rows = np.flatnonzero(codes == k)
+        first_motion = rows[motion[rows]][0]
+        last_sweep = rows[~motion[rows]][-1]
+        assert_array_equal(dq[rows[0]], [0.0, 0.0])
+        assert_allclose(dq[first_motion], q[first_motion] - q[last_sweep], rtol=0, atol=1e-12)
+        assert np.abs(dq[first_motion]).max() > 0
+        # every later row is the step from the previous row of its run
+        assert_allclose(dq[rows[1:]], np.diff(q[rows], axis=0), rtol=0, atol=1e-12)
+    # the input frame is not modified
+    assert "dq1" not in Xb.columns
+
+
+def test_standardizer_ignores_nan_rows_and_constant_columns():
+    values = np.array(
+        [
+            [1.0, 5.0, 2.0],
+            [3.0, 5.0, 4.0],
+            [np.nan, 5.0, 100.0],  # NaN and infinite rows are left out
+            [5.0, 5.0, 6.0],
+            [2.0, np.inf, 0.0],
+        ]
+    )
+    s = Standardizer.fit(values)
+    finite = values[[0, 1, 3]]
+    assert_allclose(s.mean, finite.mean(axis=0))
+    assert_allclose(s.scale[[0, 2]], finite.std(axis=0)[[0, 2]])
+    assert s.scale[1] > 0  # constant column: no division by zero
+    out = s.transform(finite)
+    assert np.isfinite(out).all()
+    assert_array_equal(out[:, 1], 0.0)
+    assert_allclose(out.mean(axis=0), 0.0, atol=1e-12)
+    assert_allclose(out[:, [0, 2]].std(axis=0), 1.0)
+    # any leading shape; the dtype of the input is kept
+    batch = np.stack([finite, finite]).astype(np.float32)
+    out32 = s.transform(batch)
+    assert out32.shape == batch.shape and out32.dtype == np.float32
+    assert_allclose(out32[1], out, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="no finite row"):
+        Standardizer.fit(np.full((3, 2), np.nan))
+
+
+def _covered(lengths, run_index, start, window):
+    covered = [np.zeros(n, dtype=bool) for n in lengths]
+    for k, s in zip(run_index, start):
+        covered[k][s : s + window] = True
+    return covered
+
+
+@pytest.mark.parametrize("window, step", [(4, 3), (4, None), (5, 1), (3, 3), (12, 5)])
+def test_cut_windows_cover_every_step(window, step):
+    lengths = np.array([10, 3, 0, 7, 4, 1])
+    run_index, start = cut_windows(lengths, window, step)
+    assert run_index.dtype.kind == "i" and start.dtype.kind == "i"
+    assert 2 not in run_index  # a run without motion gives no window
+    for k, n in enumerate(lengths):
+        s = start[run_index == k]
+        if n == 0:
+            continue
+        assert s[0] == 0
+        assert np.all(np.diff(s) > 0)
+        assert np.all(np.diff(s) <= (window if step is None else step))
+        # the last window ends at the end of the run; a short run has one window
+        assert s[-1] == max(n - window, 0)
+        if n <= window:
+            assert_array_equal(s, [0])
+    assert all(c.all() for c in _covered(lengths, run_index, start, window))
+
+
+def test_cut_windows_examples():
+    run_index, start = cut_windows([10, 3], 4, 3)
+    assert_array_equal(run_index, [0, 0, 0, 1])
+    assert_array_equal(start, [0, 3, 6, 0])
+    run_index, start = cut_windows([10], 4)
+    assert_array_equal(start, [0, 4, 6])
+    # None: one whole sequence per run with motion
+    run_index, start = cut_windows([5, 0, 8], None)
+    assert_array_equal(run_index, [0, 2])
+    assert_array_equal(start, [0, 0])
+    run_index, start = cut_windows([0, 0], 4)
+    assert run_index.size == 0 and start.size == 0
+
+
+# ---------------------------------------------------------------------------
+# torch modules
+# ---------------------------------------------------------------------------
+def _seeded(factory, seed=0):
+    """Build a module under a private seed (the global torch RNG is left alone)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return factory()
+
+
+def _inputs(batch=2, T=30, L=12, n_features=9, n_sweep=4, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    features = torch.randn(batch, T, n_features, generator=g)
+    sweep = torch.randn(batch, L, n_sweep, generator=g)
+    length = torch.tensor([5, L][:batch])
+    return features, sweep, length
+
+
+SMALL_MODULE = dict(hidden_size=8, context_size=4, encoder_hidden_size=8)
+MODULES = [
+    lambda **kw: GRUResidualModule(head_hidden_size=8, **{**SMALL_MODULE, **kw}),
+    lambda **kw: MLPResidualModule(**{**SMALL_MODULE, **kw}),
+]
+MODULE_IDS = ["GRUResidualModule", "MLPResidualModule"]
+
+
+@pytest.mark.parametrize("make", MODULES, ids=MODULE_IDS)
+def test_module_output_shapes(make):
+    features, sweep, length = _inputs()
+    module = _seeded(make)
+    assert module(features, sweep, length).shape == (2, 30, 3)
+    small = _seeded(lambda: make(n_features=7, n_sweep_features=2))
+    f7, s2, length = _inputs(n_features=7, n_sweep=2)
+    assert small(f7, s2, length).shape == (2, 30, 3)
+    encoder = _seeded(lambda: SweepEncoder(4, hidden_size=8, context_size=5))
+    z = encoder(sweep, length)
+    assert z.shape == (2, 5) and (z.abs() <= 1).all()
+
+
+def test_masked_normalized_mse_matches_hand_computation():
+    g = torch.Generator().manual_seed(0)
+    prediction = torch.randn(2, 5, 3, generator=g)
+    target = torch.randn(2, 5, 3, generator=g)
+    mask = torch.tensor([[1, 1, 0, 1, 0], [0, 1, 1, 0, 0]], dtype=torch.float32)
+    loss = MaskedNormalizedMSE()(prediction, target, mask)
+    p, t, m = prediction.numpy(), target.numpy(), mask.numpy().astype(bool)
+    expected = ((p[m] - t[m]) ** 2).sum() / (3 * m.sum())
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+    # steps outside the mask do not count; a boolean mask works the same
+    changed = prediction.clone()
+    changed[~mask.bool()] += 100.0
+    assert MaskedNormalizedMSE()(changed, target, mask.bool()).item() == pytest.approx(
+        expected, rel=1e-6
+    )
+    # an empty mask gives 0, not NaN
+    assert MaskedNormalizedMSE()(prediction, target, torch.zeros(2, 5)).item() == 0.0
+
+
+@pytest.mark.parametrize("make", MODULES, ids=MODULE_IDS)
+def test_module_is_causal_and_ignores_sweep_padding(make):
+    module = _seeded(make)
+    features, sweep, length = _inputs()
+    with torch.no_grad():
+        out = module(features, sweep, length)
+        # steps after t do not change the output up to t
+        t = 11
+        later = features.clone()
+        later[:, t + 1 :] += torch.randn_like(later[:, t + 1 :])
+        out_later = module(later, sweep, length)
+        assert_allclose(out_later[:, : t + 1].numpy(), out[:, : t + 1].numpy(), atol=1e-6)
+        assert not torch.allclose(out_later[:, t + 1 :], out[:, t + 1 :])
+        # padded sweep steps (beyond sweep_length) do not change the context
+        padded = sweep.clone()
+        padded[0, length[0] :] = 7.0
+        assert_allclose(module(features, padded, length).numpy(), out.numpy(), atol=1e-6)
+        # a valid sweep step does
+        valid = sweep.clone()
+        valid[0, length[0] - 1] += 1.0
+        changed = module(features, valid, length)
+        assert not torch.allclose(changed[0], out[0])
+        assert_allclose(changed[1].numpy(), out[1].numpy(), atol=1e-6)
+
+
+@pytest.mark.parametrize("make", MODULES, ids=MODULE_IDS)
+def test_module_without_context_ignores_the_sweep(make):
+    features, sweep, length = _inputs()
+    module = _seeded(lambda: make(use_context=False))
+    assert module.encoder is None
+    with torch.no_grad():
+        out = module(features)
+        assert out.shape == (2, 30, 3)
+        assert torch.equal(module(features, sweep, length), out)
+        assert torch.equal(module(features, 5 * sweep, length), out)
+    with_context = _seeded(make)
+    with pytest.raises(ValueError, match="sweep"):
+        with_context(features)
+
+
+# ---------------------------------------------------------------------------
+# fit / predict
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_pipeline_fit_predict(Est, small, fitted):
+    X, Xb, y = small
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(Est))])
+    assert pipe.fit(X, y) is pipe
+    pred = pipe.predict(X)
+    assert pred.shape == (len(X), 3) and pred.dtype == np.float64
+    assert np.isfinite(pred).all()
+    b = Xb[B].to_numpy()
+    motion = _motion(X)
+    # sweep rows get the nominal tip unchanged, motion rows a residual
+    assert_array_equal(pred[~motion], b[~motion])
+    assert np.abs(pred[motion] - b[motion]).min(axis=1).max() > 0
+    # the pipeline is the backbone's output fed to the residual
+    _, pred_direct = fitted(Est)
+    assert_allclose(pred, pred_direct, rtol=0, atol=1e-9)
+    assert pipe.score(X, y) == pytest.approx(-mean_per_run_rmse(y, pred, X))
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_predict_residual_and_score(Est, small, fitted):
+    _, Xb, y = small
+    est, pred = fitted(Est)
+    r = est.predict_residual(Xb)
+    assert r.shape == (len(Xb), 3)
+    assert_array_equal(r[~_motion(Xb)], 0.0)
+    assert_allclose(Xb[B].to_numpy() + r, pred, rtol=0, atol=1e-12)
+    assert est.score(Xb, y) == pytest.approx(-mean_per_run_rmse(y, pred, Xb))
+    assert est.sigma_e_.shape == (3,) and (est.sigma_e_ > 0).all()
+    assert est.x_scaler_.mean.shape == (9,) and est.s_scaler_.mean.shape == (4,)
+    with pytest.raises(ValueError, match="sample_weight"):
+        est.score(Xb, y, sample_weight=np.ones(len(Xb)))
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_applied_residual_is_clipped(Est, small):
+    _, Xb, y = small
+    est = _tiny(Est, clip=0.5).fit(Xb, y)
+    r = est.predict(Xb) - Xb[B].to_numpy()
+    motion = _motion(Xb)
+    assert np.abs(r[motion]).max() <= 0.5 + 1e-12
+    assert np.abs(r[motion]).max() == pytest.approx(0.5)  # the bound is reached
+    assert_array_equal(r[~motion], 0.0)
+    # without a bound the same network goes further
+    est.set_params(clip=None)
+    assert np.abs(est.predict(Xb) - Xb[B].to_numpy())[motion].max() > 0.5
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_predict_does_not_read_motion_references(Est, small, fitted):
+    X, Xb, y = small
+    est, pred = fitted(Est)
+    motion = _motion(Xb)
+    rng = np.random.default_rng(0)
+    scrambled = Xb.copy()
+    scrambled.loc[motion, REF] = rng.normal(0.0, 50.0, (motion.sum(), 3))
+    assert_array_equal(est.predict(scrambled), pred)
+    scrambled.loc[motion, REF] = np.nan
+    assert_array_equal(est.predict(scrambled), pred)
+    # through the pipeline as well (the backbone reads only sweep references)
+    pipe = Pipeline([("backbone", PDLBackbone().fit(X)), ("residual", est)])
+    raw = X.copy()
+    raw.loc[motion, REF] = rng.normal(0.0, 50.0, (motion.sum(), 3))
+    assert_allclose(pipe.predict(raw), pred, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_runs_are_predicted_independently(Est, small, fitted):
+    _, Xb, _ = small
+    est, pred = fitted(Est)
+    for run in _runs(Xb):
+        rows = (Xb["run"] == run).to_numpy()
+        assert_allclose(est.predict(Xb[rows]), pred[rows], rtol=0, atol=1e-5)
+    # rows of the runs interleaved (time order kept within each run)
+    order = np.argsort(Xb["t"].to_numpy(), kind="stable")
+    assert (Xb["run"].iloc[order[:3]].nunique()) > 1
+    assert_allclose(est.predict(Xb.iloc[order]), pred[order], rtol=0, atol=1e-5)
+    # runs in reverse order
+    reverse = np.concatenate(
+        [np.flatnonzero((Xb["run"] == r).to_numpy()) for r in _runs(Xb)[::-1]]
+    )
+    assert_allclose(est.predict(Xb.iloc[reverse]), pred[reverse], rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_prediction_is_causal(Est, small, fitted):
+    # the prediction of a motion row does not depend on later rows
+    _, Xb, _ = small
+    est, pred = fitted(Est)
+    rows = np.flatnonzero((Xb["run"] == _runs(Xb)[1]).to_numpy())
+    n_sweep = int((~_motion(Xb.iloc[rows])).sum())
+    head = rows[: n_sweep + 120]
+    assert_allclose(est.predict(Xb.iloc[head]), pred[head], rtol=0, atol=1e-5)
+    # changing the motor angle of motion step 10 changes steps 10 and 11
+    # (through dq), and the later steps of a recurrent learner only
+    changed = Xb.iloc[rows].copy()
+    changed.iloc[n_sweep + 10, changed.columns.get_loc("q1")] += 5.0
+    diff = np.abs(est.predict(changed) - pred[rows]).max(axis=1)
+    assert diff[: n_sweep + 10].max() < 1e-5
+    assert diff[n_sweep + 10] > 1e-3 and diff[n_sweep + 11] > 1e-3
+    assert (diff[n_sweep + 12 :].max() > 1e-3) == (Est is GRUResidual)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_runs_without_motion_get_the_backbone(Est, small, fitted):
+    _, Xb, _ = small
+    est, pred = fitted(Est)
+    sweep = ~_motion(Xb)
+    first = (Xb["run"] == _runs(Xb)[0]).to_numpy()
+    # recordings that stop during the sweep: nothing to correct
+    assert_array_equal(est.predict(Xb[first & sweep]), Xb.loc[first & sweep, B].to_numpy())
+    assert_array_equal(est.predict(Xb[sweep]), Xb.loc[sweep, B].to_numpy())
+    # next to runs with motion
+    rows = (first & sweep) | ~first
+    assert_allclose(est.predict(Xb[rows]), pred[rows], rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_inputs_are_not_modified(Est, small):
+    _, Xb, y = small
+    X_before, y_before = Xb.copy(deep=True), y.copy()
+    est = _tiny(Est).fit(Xb, y)
+    est.predict(Xb)
+    est.score(Xb, y)
+    assert Xb.equals(X_before) and list(Xb.dtypes) == list(X_before.dtypes)
+    assert_array_equal(y, y_before)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_random_state_makes_fits_reproducible(Est, small, fitted):
+    _, Xb, y = small
+    _, pred = fitted(Est)
+    assert_array_equal(_tiny(Est).fit(Xb, y).predict(Xb), pred)
+    assert np.abs(_tiny(Est, random_state=1).fit(Xb, y).predict(Xb) - pred).max() > 1e-3
+    # a RandomState instance is accepted as well
+    rs = _tiny(Est, random_state=np.random.RandomState(0)).fit(Xb, y).predict(Xb)
+    assert rs.shape == pred.shape and np.isfinite(rs).all()
+
+
+class _ThreadSpy(Callback):
+    """Records torch's thread count at every epoch."""
+
+    def initialize(self):
+        self.seen = []
+        return self
+
+    def on_epoch_begin(self, net, **kwargs):
+        self.seen.append(torch.get_num_threads())
+
+
+def test_fit_restores_threads_and_global_random_state(small):
+    _, Xb, y = small
+    before = torch.get_num_threads()
+    torch.set_num_threads(before + 1)
+    try:
+        torch_state = torch.get_rng_state()
+        np_state = np.random.get_state()[1].copy()
+        spy = _ThreadSpy()
+        est = _tiny(GRUResidual, n_threads=1, callbacks=[("spy", spy)]).fit(Xb, y)
+        assert spy.seen == [1, 1]  # training ran on one thread
+        assert torch.get_num_threads() == before + 1
+        assert torch.equal(torch.get_rng_state(), torch_state)
+        est.predict(Xb)
+        assert torch.get_num_threads() == before + 1
+        # prediction does not draw from torch's global generator either
+        assert torch.equal(torch.get_rng_state(), torch_state)
+        assert_array_equal(np.random.get_state()[1], np_state)
+    finally:
+        torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_pickle_and_joblib_round_trip(Est, small, fitted):
+    _, Xb, _ = small
+    est, pred = fitted(Est)
+    assert_array_equal(pickle.loads(pickle.dumps(est)).predict(Xb), pred)
+    buffer = io.BytesIO()
+    joblib.dump(est, buffer)
+    buffer.seek(0)
+    assert_array_equal(joblib.load(buffer).predict(Xb), pred)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_clone_and_nested_params(Est, small, fitted):
+    _, Xb, y = small
+    est, pred = fitted(Est)
+    keys = [
+        "module__hidden_size", "module__context_size", "window", "burn_in", "sweep_stride",
+        "lr", "max_epochs", "batch_size", "n_threads", "random_state", "clip", "use_torque",
+    ]  # fmt: skip
+    params = est.get_params()
+    assert params["module__hidden_size"] == 8 and params["window"] == 50
+    assert params["burn_in"] == 10
+    cloned = clone(est)
+    assert {k: cloned.get_params()[k] for k in keys} == {k: params[k] for k in keys}
+    assert not cloned.initialized_ and not hasattr(cloned, "sigma_e_")
+    assert_array_equal(cloned.fit(Xb, y).predict(Xb), pred)
+    # module__ parameters reach the network
+    other = _tiny(Est).set_params(module__hidden_size=6, window=40)
+    assert other.get_params()["module__hidden_size"] == 6
+    assert other.get_params()["window"] == 40
+    other.fit(Xb, y)
+    first = other.module_.gru if Est is GRUResidual else other.module_.mlp[0]
+    assert (first.hidden_size if Est is GRUResidual else first.out_features) == 6
+
+
+def test_default_parameters():
+    gru, mlp = GRUResidual(), MLPResidual()
+    assert gru.get_params()["burn_in"] == 50
+    assert mlp.get_params()["burn_in"] == 0  # no hidden state to warm up
+    for est in (gru, mlp):
+        p = est.get_params()
+        assert (p["window"], p["clip"], p["lr"], p["use_torque"], p["use_context"]) == (
+            200, 25.0, 1e-3, True, True
+        )
+    assert clone(mlp).get_params()["burn_in"] == 0
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_fit_keeps_parameters(Est, small):
+    _, Xb, y = small
+    est = _tiny(Est)
+    before = joblib.hash({k: v for k, v in est.get_params().items() if k != "callbacks"})
+    assert est.fit(Xb, y) is est
+    est.predict(Xb)
+    after = joblib.hash({k: v for k, v in est.get_params().items() if k != "callbacks"})
+    assert after == before
+    assert list(est.feature_names_in_) == list(Xb.columns)
+    assert est.n_features_in_ == Xb.shape[1]
+
+
+def test_fit_sets_only_private_or_trailing_underscore_attributes(small):
+    _, Xb, y = small
+    est = _tiny(GRUResidual)
+    public_before = {k for k in vars(est) if not k.startswith("_")}
+    est.fit(Xb, y)
+    est.predict(Xb)
+    added = {k for k in vars(est) if not k.startswith("_")} - public_before
+    assert {"module_", "sigma_e_", "x_scaler_", "s_scaler_", "n_features_in_"} <= added
+    assert all(k.endswith("_") for k in added)
+
+
+@pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
+def test_predict_does_not_change_the_estimator(Est, small, fitted):
+    _, Xb, y = small
+    est = fitted(Est)[0] if Est is not NoResidual else NoResidual().fit(Xb, y)
+    before = dict(vars(est))
+    weights = {}
+    if Est is not NoResidual:
+        weights = {k: v.clone() for k, v in est.module_.state_dict().items()}
+    est.predict(Xb)
+    est.score(Xb, y)
+    after = vars(est)
+    assert after.keys() == before.keys()
+    assert all(after[k] is before[k] for k in before)
+    for key, value in weights.items():
+        assert torch.equal(est.module_.state_dict()[key], value)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_numeric_dtypes_of_recordings(Est, small, fitted):
+    _, Xb, y = small
+    est, pred = fitted(Est)
+    X2 = Xb.astype({"tau1": np.float32, "tau2": np.float32, "b_x": np.float32})
+    X2["q1"] = X2["q1"].astype(object)
+    pred2 = est.predict(X2)
+    assert pred2.dtype == np.float64
+    assert np.abs(pred2 - pred).max() < 1e-3
+    # integer torques train as well
+    X3 = Xb.assign(tau1=Xb["tau1"].round().astype(np.int64), tau2=Xb["tau2"].round().astype(int))
+    pred3 = _tiny(Est).fit(X3, y.astype(np.float32)).predict(X3)
+    assert pred3.dtype == np.float64 and np.isfinite(pred3).all()
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_read_only_recordings(Est, small, fitted):
+    _, Xb, y = small
+    _, pred = fitted(Est)
+    arrays = {}
+    for name in Xb.columns:
+        values = Xb[name].to_numpy(copy=True)
+        values.flags.writeable = False
+        arrays[name] = values
+    X_ro = pd.DataFrame(arrays, index=Xb.index, copy=False)
+    y_ro = y.copy()
+    y_ro.flags.writeable = False
+    assert not X_ro["q1"].to_numpy().flags.writeable
+    assert_array_equal(_tiny(Est).fit(X_ro, y_ro).predict(X_ro), pred)
+
+
+@pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
+def test_empty_and_non_dataframe_input(Est, small):
+    _, Xb, y = small
+    est = _tiny(Est) if Est is not NoResidual else NoResidual()
+    with pytest.raises(ValueError, match="empty"):
+        est.fit(Xb.iloc[:0], y[:0])
+    with pytest.raises(TypeError, match="DataFrame"):
+        est.fit(Xb.to_numpy(), y)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_fit_rejects_bad_targets(Est, small):
+    _, Xb, y = small
+    with pytest.raises(ValueError, match="rows"):
+        _tiny(Est).fit(Xb, y[:-1])
+    y_inf = y.copy()
+    y_inf[-3, 1] = np.inf
+    with pytest.raises(ValueError, match="infinite"):
+        _tiny(Est).fit(Xb, y_inf)
+    with pytest.raises(ValueError):
+        _tiny(Est).fit(Xb, y[:, :2])
+
+
+def test_tracker_dropouts_in_y_are_skipped(small):
+    _, Xb, y = small
+    y_nan = y.copy()
+    y_nan[::7] = np.nan
+    est = _tiny(GRUResidual).fit(Xb, y_nan)
+    assert np.isfinite(est.predict(Xb)).all()
+    assert np.isfinite(est.history[:, "train_loss"]).all()
+    y_none = y.copy()
+    y_none[_motion(Xb)] = np.nan
+    with pytest.raises(ValueError, match="no finite tip position"):
+        _tiny(GRUResidual).fit(Xb, y_none)
+
+
+# ---------------------------------------------------------------------------
+# errors
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
+def test_missing_backbone_columns(Est, small):
+    X, _, y = small
+    est = _tiny(Est) if Est is not NoResidual else NoResidual()
+    with pytest.raises(ValueError, match="b_x") as info:
+        est.fit(X, y)
+    assert "PDLBackbone" in str(info.value) and "Pipeline" in str(info.value)
+
+
+@pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
+def test_bad_backbone_values_and_columns_at_predict(Est, small, fitted):
+    _, Xb, y = small
+    est = fitted(Est)[0] if Est is not NoResidual else NoResidual().fit(Xb, y)
+    bad = Xb.copy()
+    bad.iloc[5, bad.columns.get_loc("b_y")] = np.nan
+    with pytest.raises(ValueError, match="b_y"):
+        est.predict(bad)
+    with pytest.raises(ValueError, match="tau1"):
+        est.predict(Xb.drop(columns="tau1"))
+    with pytest.raises(ValueError, match="b_z"):
+        est.predict(Xb.drop(columns="b_z"))
+    if Est is not NoResidual:
+        with pytest.raises(ValueError, match="b_y"):
+            _tiny(Est).fit(bad, y)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_fit_needs_y(Est, small):
+    _, Xb, _ = small
+    for method in ("fit", "partial_fit"):
+        est = _tiny(Est)
+        with pytest.raises(ValueError, match="tip positions y"):
+            getattr(est, method)(Xb, None)
+        assert not hasattr(est, "sigma_e_")
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+@pytest.mark.parametrize(
+    "params, name",
+    [
+        (dict(window=1), "window"),
+        (dict(burn_in=50, window=50), "burn_in"),
+        (dict(burn_in=-1), "burn_in"),
+        (dict(validation_fraction=1.5), "validation_fraction"),
+        (dict(validation_fraction=0.0), "validation_fraction"),
+        (dict(clip=0.0), "clip"),
+        (dict(sweep_stride=0), "sweep_stride"),
+        (dict(n_threads=0), "n_threads"),
+        (dict(lr=-1.0), "lr"),
+    ],
+    ids=lambda v: str(v) if isinstance(v, str) else None,
+)
+def test_bad_parameters_raise_value_error(Est, params, name, small):
+    _, Xb, y = small
+    est = _tiny(Est, **params)
+    with pytest.raises(ValueError, match=name):
+        est.fit(Xb, y)
+    assert not hasattr(est, "sigma_e_")
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_not_fitted(Est, small):
+    _, Xb, y = small
+    est = _tiny(Est)
+    with pytest.raises(NotFittedError):
+        est.predict(Xb)
+    with pytest.raises(NotFittedError):
+        est.predict_residual(Xb)
+    with pytest.raises(NotFittedError):
+        est.score(Xb, y)
+    with pytest.raises(NotFittedError):
+        NoResidual().predict(Xb)
+
+
+# ---------------------------------------------------------------------------
+# pretrained, warm start, validation
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_pretrained_starts_from_the_fitted_weights(Est, small, fitted):
+    _, Xb, y = small
+    source, pred = fitted(Est)
+    weights = {k: v.clone() for k, v in source.module_.state_dict().items()}
+    # no training: the pretrained model's predictions, and its statistics
+    same = _tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    assert_array_equal(same.predict(Xb), pred)
+    assert_array_equal(same.sigma_e_, source.sigma_e_)
+    assert same.module_ is not source.module_
+    # fine-tuning changes the copy, not the source; the statistics are kept
+    # even though the data are different
+    tuned = _tiny(Est, max_epochs=1, lr=1e-2, pretrained=FrozenEstimator(source))
+    part = (Xb["setting"] != "S02").to_numpy()
+    tuned.fit(Xb[part], y[part])
+    assert np.abs(tuned.predict(Xb) - pred).max() > 1e-4
+    assert_array_equal(tuned.x_scaler_.mean, source.x_scaler_.mean)
+    for key, value in source.module_.state_dict().items():
+        assert torch.equal(value, weights[key])
+    assert_array_equal(source.predict(Xb), pred)
+    # FrozenEstimator survives clone; the fine-tuned start is not a random one
+    from_clone = clone(_tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)))
+    assert_array_equal(from_clone.fit(Xb, y).predict(Xb), pred)
+    assert np.abs(_tiny(Est, max_epochs=0, random_state=5).fit(Xb, y).predict(Xb) - pred).max() > 0
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_pretrained_errors(Est, small, fitted):
+    _, Xb, y = small
+    source, _ = fitted(Est)
+    with pytest.raises(NotFittedError, match="FrozenEstimator"):
+        _tiny(Est, pretrained=Est()).fit(Xb, y)
+    # a plain fitted estimator loses its weights when cloned
+    with pytest.raises(NotFittedError, match="FrozenEstimator"):
+        clone(_tiny(Est, pretrained=source)).fit(Xb, y)
+    with pytest.raises(ValueError, match="use_torque"):
+        _tiny(Est, use_torque=False, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    with pytest.raises(ValueError, match="use_context"):
+        _tiny(Est, use_context=False, pretrained=source).fit(Xb, y)
+    other = MLPResidual if Est is GRUResidual else GRUResidual
+    with pytest.raises(TypeError, match=Est.__name__):
+        _tiny(Est, pretrained=fitted(other)[0]).fit(Xb, y)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_warm_start_continues_training(Est, small):
+    _, Xb, y = small
+    est = _tiny(Est, warm_start=True)
+    est.fit(Xb, y)
+    assert len(est.history) == 2
+    module, scaler = est.module_, est.x_scaler_
+    first = est.predict(Xb)
+    est.fit(Xb, y)
+    assert len(est.history) == 4
+    assert est.module_ is module and est.x_scaler_ is scaler
+    assert np.abs(est.predict(Xb) - first).max() > 0
+    # partial_fit continues as well; without warm start, fit starts over
+    est.partial_fit(Xb, y)
+    assert len(est.history) == 6
+    cold = _tiny(Est)
+    cold.fit(Xb, y)
+    cold.fit(Xb, y)
+    assert len(cold.history) == 2
+    assert_array_equal(cold.predict(Xb), first)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_whole_sequence_training(Est, small, monkeypatch):
+    # window=None: one training item per run, every step in the loss
+    _, Xb, y = small
+    calls = []
+    original = Est.get_split_datasets
+
+    def spy(self, X, y=None, **fit_params):
+        calls.append(X)
+        return original(self, X, y, **fit_params)
+
+    monkeypatch.setattr(Est, "get_split_datasets", spy)
+    est = _tiny(Est, window=None, burn_in=500).fit(Xb, y)
+    data = calls[0]
+    assert data["features"].shape == (len(SMALL_SETTINGS), N_MOTION, 9)
+    assert data["mask"].sum() == _motion(Xb).sum()
+    pred = est.predict(Xb)
+    assert np.isfinite(pred).all()
+    assert np.abs(pred - Xb[B].to_numpy())[_motion(Xb)].max() > 0
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_first_partial_fit_is_fit(Est, small, fitted):
+    _, Xb, y = small
+    source, pred = fitted(Est)
+    est = _tiny(Est)
+    assert est.partial_fit(Xb, y) is est
+    assert len(est.history) == 2
+    assert_array_equal(est.predict(Xb), pred)
+    # including the start from a pretrained model
+    tuned = _tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)).partial_fit(Xb, y)
+    assert_array_equal(tuned.predict(Xb), pred)
+
+
+def test_validation_holds_out_whole_settings(small, monkeypatch):
+    _, Xb, y = small
+    X4, y4 = _with_repeat(Xb, y, "S09")  # four runs, three settings
+    calls = []
+    original = GRUResidual.get_split_datasets
+
+    def spy(self, X, y=None, **fit_params):
+        out = original(self, X, y, **fit_params)
+        calls.append((X, out))
+        return out
+
+    monkeypatch.setattr(GRUResidual, "get_split_datasets", spy)
+    est = _tiny(GRUResidual, validation_fraction=0.3, max_epochs=3).fit(X4, y4)
+    valid_loss = est.history[:, "valid_loss"]
+    assert len(valid_loss) == 3 and np.isfinite(valid_loss).all()
+    assert est.predict(X4).shape == (len(X4), 3)
+
+    # the setting of every training window, from the run order and cut_windows
+    data, (train, valid) = calls[0]
+    runs = _runs(X4)
+    lengths = [int((_motion(X4) & (X4["run"] == r).to_numpy()).sum()) for r in runs]
+    run_index, _ = cut_windows(np.array(lengths), 50, 40)
+    setting_of_run = np.array(
+        [X4.loc[X4["run"] == r, "setting"].astype(str).iloc[0] for r in runs]
+    )
+    window_setting = setting_of_run[run_index]
+    assert len(data["features"]) == len(window_setting)
+    assert_array_equal(pd.factorize(window_setting)[0], data["group"])
+    in_train = set(window_setting[train.indices])
+    in_valid = set(window_setting[valid.indices])
+    assert in_train and in_valid and not in_train & in_valid
+    assert in_train | in_valid == set(SMALL_SETTINGS)
+    assert len(train.indices) + len(valid.indices) == len(window_setting)
+    # the split is seeded: the same settings are held out again
+    _tiny(GRUResidual, validation_fraction=0.3, max_epochs=1).fit(X4, y4)
+    assert_array_equal(calls[-1][1][1].indices, valid.indices)
+
+
+def test_early_stopping_restores_the_best_epoch(small, monkeypatch):
+    _, Xb, y = small
+    calls = []
+    original = MLPResidual.get_split_datasets
+
+    def spy(self, X, y=None, **fit_params):
+        out = original(self, X, y, **fit_params)
+        calls.append((X, y, out))
+        return out
+
+    monkeypatch.setattr(MLPResidual, "get_split_datasets", spy)
+    est = _tiny(
+        MLPResidual, validation_fraction=0.3, n_iter_no_change=2, max_epochs=30, lr=0.3
+    ).fit(Xb, y)
+    valid_loss = np.asarray(est.history[:, "valid_loss"])
+    assert len(valid_loss) < 30  # stopped early
+    best = int(np.argmin(valid_loss))
+    assert len(valid_loss) == best + 1 + 2  # after n_iter_no_change epochs without progress
+    assert valid_loss[-1] > valid_loss[best]
+    # the weights of the best epoch are restored: the validation windows (one
+    # batch) have the best epoch's loss
+    data, target, (_, valid) = calls[0]
+    assert len(valid.indices) <= est.batch_size
+    items = {k: v[valid.indices] for k, v in data.items()}
+    with torch.no_grad():
+        loss = est.get_loss(est.infer(items), target[valid.indices], items).item()
+    assert loss == pytest.approx(valid_loss[best], rel=1e-4)
+
+
+def test_validation_needs_two_settings(small):
+    _, Xb, y = small
+    rows = (Xb["setting"] == "S02").to_numpy()
+    with pytest.raises(ValueError, match="two shaft settings"):
+        _tiny(GRUResidual, validation_fraction=0.3).fit(Xb[rows], y[rows])
+
+
+# ---------------------------------------------------------------------------
+# inputs that must not matter
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_without_torque_the_torques_are_not_used(Est, small, fitted):
+    _, Xb, y = small
+    rng = np.random.default_rng(1)
+    other_tau = Xb.assign(
+        tau1=rng.normal(0.0, 30.0, len(Xb)), tau2=rng.normal(0.0, 30.0, len(Xb))
+    )
+    est = _tiny(Est, use_torque=False).fit(Xb, y)
+    assert est.x_scaler_.mean.shape == (7,) and est.s_scaler_.mean.shape == (2,)
+    pred = est.predict(Xb)
+    assert_array_equal(est.predict(other_tau), pred)
+    # nor are they used in fit
+    assert_array_equal(_tiny(Est, use_torque=False).fit(other_tau, y).predict(Xb), pred)
+    # while the default learner does use them
+    with_torque, pred_torque = fitted(Est)
+    assert np.abs(with_torque.predict(other_tau) - pred_torque).max() > 1e-4
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_without_context_the_sweep_is_not_used(Est, small, fitted):
+    # fed directly with fixed backbone columns: a backbone would read the sweep
+    _, Xb, y = small
+    sweep = ~_motion(Xb)
+    # the last sweep row of a run stays: the first motion step dq is taken from it
+    last_sweep = sweep & ~np.roll(sweep, -1)
+    change = sweep & ~last_sweep
+    assert change.sum() == sweep.sum() - len(SMALL_SETTINGS)
+    rng = np.random.default_rng(2)
+    other_sweep = Xb.copy()
+    for c in ("q1", "q2", "tau1", "tau2"):
+        other_sweep.loc[change, c] = rng.normal(0.0, 20.0, change.sum())
+    est = _tiny(Est, use_context=False).fit(Xb, y)
+    assert est.module_.encoder is None
+    pred = est.predict(Xb)
+    assert_array_equal(est.predict(other_sweep), pred)
+    with_context, pred_context = fitted(Est)
+    assert np.abs(with_context.predict(other_sweep) - pred_context).max() > 1e-4
+
+
+# ---------------------------------------------------------------------------
+# NoResidual
+# ---------------------------------------------------------------------------
+def test_no_residual_returns_the_backbone(small):
+    X, Xb, y = small
+    est = NoResidual()
+    assert est.fit(Xb) is est
+    assert_array_equal(est.predict(Xb), Xb[B].to_numpy())
+    assert_array_equal(NoResidual().fit(Xb, y).predict(Xb), Xb[B].to_numpy())
+    assert est.n_features_in_ == Xb.shape[1]
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", NoResidual())]).fit(X, y)
+    assert_array_equal(pipe.predict(X), PDLBackbone().fit(X).predict(X))
+    assert est.score(Xb, y) == pytest.approx(-mean_per_run_rmse(y, Xb[B].to_numpy(), Xb))
+    with pytest.raises(ValueError, match="rows"):
+        NoResidual().fit(Xb, y[:-1])
+
+
+# ---------------------------------------------------------------------------
+# composition
+# ---------------------------------------------------------------------------
+def test_cross_validate_with_groups(small):
+    X, _, y = small
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(GRUResidual))])
+    out = cross_validate(
+        pipe, X, y, groups=X["setting"], cv=GroupKFold(2), scoring=run_rmse_scorer
+    )
+    assert out["test_score"].shape == (2,)
+    assert np.isfinite(out["test_score"]).all() and (out["test_score"] < 0).all()
+
+
+def test_grid_search_over_residuals(small):
+    X, _, y = small
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", NoResidual())])
+    grid = {"residual": [NoResidual(), _tiny(MLPResidual), _tiny(GRUResidual)]}
+    search = GridSearchCV(pipe, grid, cv=GroupKFold(2), scoring=run_rmse_scorer)
+    search.fit(X, y, groups=X["setting"])
+    assert len(search.cv_results_["params"]) == 3
+    scores = search.cv_results_["mean_test_score"]
+    assert np.isfinite(scores).all() and (scores < 0).all()
+    names = [type(p["residual"]).__name__ for p in search.cv_results_["params"]]
+    assert names == ["NoResidual", "MLPResidual", "GRUResidual"]
+    assert search.best_estimator_.predict(X).shape == (len(X), 3)
+
+
+# ---------------------------------------------------------------------------
+# the learned residual helps
+# ---------------------------------------------------------------------------
+def test_gru_beats_its_backbone_on_held_out_settings(bench, transformed):
+    # train on 12 bent settings, test on the runs of 4 others (2 low, 2 high)
+    X, y = bench.X, bench.y
+    setting = X["setting"].astype(str)
+    held_out = ["S04", "S08", "S12", "S16"]
+    test = setting.isin(held_out).to_numpy()
+    train = ~test & (setting != "S00").to_numpy()
+    assert setting[train].nunique() == 12
+    est = GRUResidual(
+        lr=3e-3,
+        max_epochs=8,
+        batch_size=32,
+        window=100,
+        burn_in=20,
+        random_state=0,
+        n_threads=1,
+    )
+    est.fit(transformed[train], y[train])
+    backbone = per_run_rmse(y[test], transformed.loc[test, B].to_numpy(), X[test])
+    learned = per_run_rmse(y[test], est.predict(transformed[test]), X[test])
+    assert len(learned) == 4
+    # every held-out run is better (about 0.7-0.8 of the backbone's error)
+    assert (learned < 0.95 * backbone).all(), (learned / backbone).to_dict()
+    assert learned.mean() < 0.9 * backbone.mean(), (learned.mean(), backbone.mean())
