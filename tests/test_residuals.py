@@ -31,7 +31,7 @@ from sklearn.model_selection import GridSearchCV, GroupKFold, cross_validate
 from sklearn.pipeline import Pipeline
 from skorch.callbacks import Callback
 
-from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
+from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from skcath.datasets import make_benchmark
 from skcath.metrics import mean_per_run_rmse, per_run_rmse, run_rmse_scorer
 from skcath.residuals import (
@@ -570,8 +570,9 @@ def test_default_parameters():
     for est in (gru, mlp):
         p = est.get_params()
         assert (p["window"], p["clip"], p["lr"], p["use_torque"], p["use_context"]) == (
-            200, 25.0, 1e-3, True, True
+            200, 25.0, 1e-2, True, True
         )
+        assert (p["lr_schedule"], p["optimizer__weight_decay"]) == ("cosine", 1e-4)
     assert clone(mlp).get_params()["burn_in"] == 0
 
 
@@ -579,10 +580,15 @@ def test_default_parameters():
 def test_fit_keeps_parameters(Est, small):
     _, Xb, y = small
     est = _tiny(Est)
-    before = joblib.hash({k: v for k, v in est.get_params().items() if k != "callbacks"})
+    # skorch lists its callback instances (stateful once trained) among the
+    # parameters; the estimator's own and the module's parameters must not change
+    def own(params):
+        return {k: v for k, v in params.items() if not k.startswith("callbacks")}
+
+    before = joblib.hash(own(est.get_params()))
     assert est.fit(Xb, y) is est
     est.predict(Xb)
-    after = joblib.hash({k: v for k, v in est.get_params().items() if k != "callbacks"})
+    after = joblib.hash(own(est.get_params()))
     assert after == before
     assert list(est.feature_names_in_) == list(Xb.columns)
     assert est.n_features_in_ == Xb.shape[1]
@@ -1009,18 +1015,46 @@ def test_cross_validate_with_groups(small):
     assert np.isfinite(out["test_score"]).all() and (out["test_score"] < 0).all()
 
 
-def test_grid_search_over_residuals(small):
+def test_grid_search_over_backbones_and_residuals(small):
+    """The issue's grid: PCC/PDL x none/MLP/GRU, whole settings held out."""
     X, _, y = small
     pipe = Pipeline([("backbone", PDLBackbone()), ("residual", NoResidual())])
-    grid = {"residual": [NoResidual(), _tiny(MLPResidual), _tiny(GRUResidual)]}
+    grid = {
+        "backbone": [PCCBackbone(), PDLBackbone()],
+        "residual": [NoResidual(), _tiny(MLPResidual), _tiny(GRUResidual)],
+    }
     search = GridSearchCV(pipe, grid, cv=GroupKFold(2), scoring=run_rmse_scorer)
     search.fit(X, y, groups=X["setting"])
-    assert len(search.cv_results_["params"]) == 3
+    assert len(search.cv_results_["params"]) == 6
     scores = search.cv_results_["mean_test_score"]
     assert np.isfinite(scores).all() and (scores < 0).all()
-    names = [type(p["residual"]).__name__ for p in search.cv_results_["params"]]
-    assert names == ["NoResidual", "MLPResidual", "GRUResidual"]
+    names = [
+        (type(p["backbone"]).__name__, type(p["residual"]).__name__)
+        for p in search.cv_results_["params"]
+    ]
+    assert names == [
+        (b, r)
+        for b in ("PCCBackbone", "PDLBackbone")
+        for r in ("NoResidual", "MLPResidual", "GRUResidual")
+    ]
+    # the baselines in the grid score exactly as the backbones alone
+    by_name = dict(zip(names, scores))
+    assert by_name[("PCCBackbone", "NoResidual")] != by_name[("PDLBackbone", "NoResidual")]
     assert search.best_estimator_.predict(X).shape == (len(X), 3)
+
+
+def test_grid_search_over_nested_learner_parameters(small):
+    """Ablation switches and module parameters are grid parameters."""
+    X, _, y = small
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(GRUResidual))])
+    grid = {"residual__use_context": [True, False], "residual__module__hidden_size": [4, 6]}
+    search = GridSearchCV(pipe, grid, cv=GroupKFold(2), scoring=run_rmse_scorer).fit(
+        X, y, groups=X["setting"]
+    )
+    assert len(search.cv_results_["params"]) == 4
+    best = search.best_estimator_["residual"]
+    assert best.module_.gru.hidden_size == search.best_params_["residual__module__hidden_size"]
+    assert best.module_.use_context == search.best_params_["residual__use_context"]
 
 
 # ---------------------------------------------------------------------------
