@@ -1,5 +1,7 @@
 """What every estimator over recordings shares: the run-RMSE score and the input tags."""
 
+import numpy as np
+
 from ._validation import check_target
 
 __all__ = ["RecordingsMixin"]
@@ -14,6 +16,11 @@ class RecordingsMixin:
     """
 
     _target_required = False
+
+    def _record_columns(self, X):
+        """Remember the columns of the recordings seen in ``fit``."""
+        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
+        self.n_features_in_ = X.shape[1]
 
     def score(self, X, y, sample_weight=None):
         """Negated mean per-run RMSE (mm) over motion rows (greater is better).

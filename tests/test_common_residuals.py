@@ -15,7 +15,7 @@ Where a generic check tests a property that does apply, a test in
 import pytest
 from sklearn.utils.estimator_checks import estimator_checks_generator, parametrize_with_checks
 
-from test_common import _check_name, _input_format_failure
+from test_common import API_CHECKS, _check_name, _input_format_failure
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
 # Prefix of every reason below: why the generic check cannot run on a residual learner.
@@ -193,19 +193,7 @@ def test_expected_failures_are_real_and_for_the_stated_reason(estimator):
             assert _input_format_failure(info.value), (name, info.value)
     # the checks of the API itself run without an expected failure, apart
     # from the two that skorch's parameter handling fails
-    for name in (
-        "check_no_attributes_set_in_init",
-        "check_parameters_default_constructible",
-        "check_get_params_invariance",
-        "check_set_params",
-        "check_estimator_repr",
-        "check_do_not_raise_errors_in_init_or_set_params",
-        "check_estimator_cloneable",
-        "check_estimators_unfitted",
-        "check_mixin_order",
-        "check_valid_tag_types",
-        "check_requires_y_none",
-    ):
+    for name in (*API_CHECKS, "check_requires_y_none"):
         if name == "check_requires_y_none" and isinstance(estimator, NoResidual):
             continue  # y is optional
         assert name in names

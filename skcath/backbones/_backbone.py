@@ -69,8 +69,7 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         self : object
         """
         X, _ = check_recordings(X, y)
-        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
-        self.n_features_in_ = X.shape[1]
+        self._record_columns(X)
         return self
 
     def _calibrate_all(self, X):

@@ -441,8 +441,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         if not hasattr(self, "sigma_e_"):
             self._fit_statistics(F, motion, sweep, y)
         data, target = self._training_windows(X, motion, sweep)
-        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
-        self.n_features_in_ = X.shape[1]
+        self._record_columns(X)
         seed = self._seed()
         self._split_seed_ = None if seed is None else seed + 1
         if seed is not None and self.initialized_:

@@ -1,6 +1,5 @@
 """The backbone alone as a final pipeline step: baselines in the same grid as the learners."""
 
-import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.utils.validation import check_is_fitted
 
@@ -52,8 +51,7 @@ class NoResidual(RecordingsMixin, RegressorMixin, BaseEstimator):
         """
         X, _ = check_recordings(X, y)
         check_backbone_columns(X, type(self).__name__)
-        self.feature_names_in_ = np.asarray(X.columns, dtype=object)
-        self.n_features_in_ = X.shape[1]
+        self._record_columns(X)
         return self
 
     def predict(self, X):
