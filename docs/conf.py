@@ -53,12 +53,24 @@ numpydoc_class_members_toctree = False
 numpydoc_attributes_as_param_list = False
 
 # -- sphinx-gallery ----------------------------------------------------------
+from sphinx_gallery.sorting import ExplicitOrder  # noqa: E402
+
 sphinx_gallery_conf = {
     "examples_dirs": "../examples",
     "gallery_dirs": "auto_examples",
     # Execute the scripts named plot_*.py; the others are only rendered.
     "filename_pattern": r"/plot_",
     "ignore_pattern": r"__init__\.py",
+    # Topic sections in reading order: data, backbones, residuals, evaluation.
+    "subsection_order": ExplicitOrder(
+        [
+            "../examples/datasets",
+            "../examples/io",
+            "../examples/backbones",
+            "../examples/residuals",
+            "../examples/model_selection",
+        ]
+    ),
     "within_subsection_order": "FileNameSortKey",
     "doc_module": ("skcath",),
     "backreferences_dir": os.path.join("gen_modules", "backreferences"),

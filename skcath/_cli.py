@@ -9,6 +9,10 @@ Commands
 benchmark
     Generate (or load from the cache) the default simulated benchmark with
     :func:`skcath.datasets.make_benchmark` and print a summary table.
+reproduce
+    Run the paper's evaluation protocol (:mod:`skcath.protocol`) on the
+    benchmark or on recordings from a file, print its tables and write them
+    as CSV with the figures as PNG.
 """
 
 from __future__ import annotations
@@ -45,6 +49,9 @@ MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 
 _AXES = ("x", "y", "z")
 
+#: The straight reference setting of the built-in benchmark, never evaluated.
+STRAIGHT_SETTING = "S00"
+
 
 def _positive_int(text: str) -> int:
     """Parse a strictly positive integer for argparse."""
@@ -68,6 +75,24 @@ def _seed(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {value}")
     return value
+
+
+def _add_mechanism_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--mechanism",
+        choices=MECHANISMS,
+        default="play",
+        help="hysteresis mechanism of the simulated tendon drive (default: %(default)s)",
+    )
+
+
+def _add_data_home_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--data-home",
+        default=None,
+        metavar="DIR",
+        help="cache folder of the benchmark (default: $SKCATH_DATA, else ~/skcath_data)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -99,12 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
             "and print a summary table."
         ),
     )
-    bench.add_argument(
-        "--mechanism",
-        choices=MECHANISMS,
-        default="play",
-        help="hysteresis mechanism of the simulated tendon drive (default: %(default)s)",
-    )
+    _add_mechanism_argument(bench)
     bench.add_argument(
         "--n-catheters",
         type=_positive_int,
@@ -126,12 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="seed of the simulator (default: %(default)s)",
     )
-    bench.add_argument(
-        "--data-home",
-        default=None,
-        metavar="DIR",
-        help="cache folder (default: $SKCATH_DATA, else ~/skcath_data)",
-    )
+    _add_data_home_argument(bench)
     bench.add_argument(
         "--no-cache",
         action="store_true",
@@ -143,6 +158,67 @@ def build_parser() -> argparse.ArgumentParser:
         help="log the progress of the simulation to standard error",
     )
     bench.set_defaults(handler=_run_benchmark, command_parser=bench)
+
+    repro = commands.add_parser(
+        "reproduce",
+        help="run the paper's evaluation protocol and write its tables and figures",
+        description=(
+            "Run the evaluation protocol of skcath.protocol: PCC, PDL, PDL+GRU, its torque/context "
+            "ablations and PDL+MLP, with shaft settings held out within each catheter and with "
+            "whole catheters held out. Prints the tables and writes them as CSV, with the figures "
+            "as PNG, to the output folder."
+        ),
+    )
+    repro.add_argument(
+        "--quick",
+        action="store_true",
+        help="short schedule (one seed, 4 setting folds per catheter, small networks): "
+        "about ten minutes on two CPU cores",
+    )
+    repro.add_argument(
+        "--out",
+        default="skcath_results",
+        metavar="DIR",
+        help="output folder for the CSV tables and PNG figures (default: %(default)s)",
+    )
+    repro.add_argument(
+        "--n-jobs",
+        type=int,
+        default=-1,
+        metavar="N",
+        help="models trained in parallel, one CPU core each; -1 uses all cores (default: %(default)s)",
+    )
+    repro.add_argument(
+        "--data",
+        default=None,
+        metavar="PATH",
+        help="recordings in the long format (CSV or Parquet with p_x, p_y, p_z or sensor poses, "
+        "see docs/data_format.rst) instead of the built-in benchmark",
+    )
+    repro.add_argument(
+        "--seeds",
+        type=_seed,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="seeds of the learned models (default: 0 1 2, or 0 with --quick)",
+    )
+    repro.add_argument(
+        "--exclude-settings",
+        nargs="*",
+        default=None,
+        metavar="SETTING",
+        help="settings used for training but never evaluated (default: the straight setting "
+        f"{STRAIGHT_SETTING} of the built-in benchmark, none with --data)",
+    )
+    _add_mechanism_argument(repro)
+    _add_data_home_argument(repro)
+    repro.add_argument(
+        "--no-figures",
+        action="store_true",
+        help="write the CSV tables only (the figures need matplotlib)",
+    )
+    repro.set_defaults(handler=_run_reproduce, command_parser=repro)
     return parser
 
 
@@ -303,6 +379,57 @@ def _run_benchmark(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
         ("generation time (s)" if generated else "load time (s)", f"{elapsed:.1f}"),
     ]
     print(format_table(rows, title="skcath benchmark"))
+    return 0
+
+
+def _load_reproduce_data(args, parser):
+    """Recordings and targets for ``reproduce``: a file, or the built-in benchmark."""
+    if args.data is not None:
+        from .io import read_recording
+
+        try:
+            return read_recording(args.data)
+        except (OSError, ValueError, ImportError) as exc:
+            parser.error(f"argument --data: {exc}")
+    from . import datasets
+
+    try:
+        bunch = datasets.make_benchmark(mechanism=args.mechanism, data_home=args.data_home)
+    except (OSError, ValueError) as exc:
+        parser.error(str(exc))
+    return bunch.X, bunch.y
+
+
+def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    import dataclasses
+
+    from . import protocol
+
+    if args.n_jobs == 0:
+        parser.error("argument --n-jobs: expected a positive number of jobs or -1 (all cores), got 0")
+    schedule = protocol.QUICK if args.quick else protocol.FULL
+    if args.seeds is not None:
+        schedule = dataclasses.replace(schedule, seeds=tuple(dict.fromkeys(args.seeds)))
+    exclude = args.exclude_settings
+    if exclude is None:
+        exclude = () if args.data is not None else (STRAIGHT_SETTING,)
+    if not args.no_figures:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            parser.error('the figures need matplotlib: pip install "skcath[plot]", or pass --no-figures')
+    X, y = _load_reproduce_data(args, parser)
+    try:
+        result = protocol.run_protocol(
+            X, y, schedule=schedule, exclude_settings=exclude, n_jobs=args.n_jobs, verbose=True,
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
+    tables = protocol.compute_tables(result)
+    print(protocol.format_report(tables, result), flush=True)
+    paths = protocol.write_results(tables, args.out, figures=not args.no_figures)
+    result.timings.to_csv(f"{args.out}/timings.csv", index=False, float_format="%.3g")
+    print(f"\nwrote {len(paths) + 1} files to {args.out}", flush=True)
     return 0
 
 

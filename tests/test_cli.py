@@ -175,3 +175,204 @@ def test_mechanism_choices_match_the_simulator():
     from skcath import _cli, datasets
 
     assert tuple(_cli.MECHANISMS) == tuple(datasets.MECHANISMS)
+
+
+# ---------------------------------------------------------------------------
+# reproduce
+# ---------------------------------------------------------------------------
+#: Settings of the small data set the ``reproduce`` tests run on (per catheter).
+REPRODUCE_SETTINGS = ("S00", "S01", "S02", "S03", "S04")
+
+
+def _tiny_schedule(name="tiny"):
+    from skcath.protocol import Schedule
+
+    return Schedule(
+        name=name,
+        seeds=(0,),
+        n_setting_folds=2,
+        variants=("PDL+GRU",),
+        model_params={"module__hidden_size": 8, "window_step": 200},
+        pretrain_params={"max_epochs": 1},
+        finetune_params={"max_epochs": 1},
+    )
+
+
+@pytest.fixture(scope="module")
+def reproduce_data(tmp_path_factory):
+    """A long-format CSV of two catheters (settings S00-S04), with the frames it was written from."""
+    make_benchmark = _make_benchmark()
+    bench = make_benchmark(n_catheters=2, n_runs=1)
+    keep = bench.X["setting"].astype(str).isin(REPRODUCE_SETTINGS).to_numpy()
+    X = bench.X[keep].reset_index(drop=True)
+    y = np.asarray(bench.y, dtype=float)[keep]
+    frame = X.copy()
+    for k, axis in enumerate("xyz"):
+        frame[f"p_{axis}"] = y[:, k]
+    path = tmp_path_factory.mktemp("reproduce") / "recordings.csv"
+    frame.to_csv(path, index=False)
+    return path, X, y
+
+
+class _Stop(Exception):
+    """Raised by the run_protocol spy once the arguments are recorded."""
+
+
+@pytest.fixture
+def protocol_spy(monkeypatch):
+    """Record the arguments ``reproduce`` passes to run_protocol, then stop."""
+    from skcath import protocol
+
+    calls = []
+
+    def spy(X, y, **kwargs):
+        calls.append({"X": X, "y": y, **kwargs})
+        raise _Stop
+
+    monkeypatch.setattr(protocol, "run_protocol", spy)
+    return calls
+
+
+def test_reproduce_csv_round_trips(reproduce_data):
+    from skcath.io import read_recording
+
+    path, X, y = reproduce_data
+    X_read, y_read = read_recording(path)
+    assert list(X_read.columns) == [
+        "catheter", "setting", "run", "t", "phase", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z",
+    ]
+    for column in ("catheter", "setting", "run", "phase"):
+        np.testing.assert_array_equal(X_read[column].astype(str).to_numpy(), X[column].astype(str).to_numpy())
+    numeric = ["t", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z"]
+    np.testing.assert_allclose(X_read[numeric].to_numpy(), X[numeric].to_numpy(), rtol=1e-12)
+    np.testing.assert_allclose(y_read, y, rtol=1e-12)
+
+
+def test_reproduce_prints_tables_and_writes_files(reproduce_data, tmp_path, monkeypatch, capsys):
+    from skcath import protocol
+    from skcath.protocol._report import TABLE_FILES
+
+    path, X, _ = reproduce_data
+    monkeypatch.setattr(protocol, "FULL", _tiny_schedule("tiny-full"))
+    import importlib.util
+
+    figures = importlib.util.find_spec("matplotlib") is not None
+    out = tmp_path / "results"
+    argv = ["reproduce", "--data", str(path), "--out", str(out), "--n-jobs", "1", "--exclude-settings", "S00"]
+    if not figures:
+        argv.append("--no-figures")
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "Table I." in printed
+    assert "schedule: tiny-full (2 setting folds per catheter, seeds [0])" in printed
+    assert "not evaluated: ['S00']" in printed
+    assert "Leave one catheter out" in printed
+
+    files = {p.name for p in out.iterdir()}
+    for key in ("table_1", "run_rmse", "run_rmse_by_seed", "paired", "loco", "cdf_at_5mm", "example"):
+        assert TABLE_FILES[key] in files
+    assert "timings.csv" in files
+    if figures:
+        assert {"rmse_boxes.png", "error_cdf.png", "new_catheter.png"} <= files
+    assert re.search(rf"wrote {len(files)} files to ", printed)
+
+    table_1 = pd.read_csv(out / TABLE_FILES["table_1"], index_col=0)
+    assert list(table_1.index) == ["PCC", "PDL", "PDL+GRU"]
+    assert list(table_1.columns) == ["C1", "C2", "pooled"]
+    assert np.isfinite(table_1.to_numpy()).all()
+    run_rmse = pd.read_csv(out / TABLE_FILES["run_rmse"])
+    expected_runs = set(X.loc[X["setting"].astype(str) != "S00", "run"].astype(str))
+    assert set(run_rmse["run"]) == expected_runs
+    assert set(run_rmse["method"]) == {"PCC", "PDL", "PDL+GRU", "PDL+GRU (LOCO)"}
+    timings = pd.read_csv(out / "timings.csv")
+    # one pretrained model per catheter, one fine-tuned model per fold
+    assert sorted(timings["stage"]) == ["fine-tune"] * 4 + ["pretrain"] * 2
+
+
+def test_reproduce_seeds_and_schedule_choice(reproduce_data, protocol_spy, tmp_path):
+    from skcath import protocol
+
+    path, X, y = reproduce_data
+    base = ["reproduce", "--data", str(path), "--out", str(tmp_path), "--no-figures"]
+
+    with pytest.raises(_Stop):
+        main(base)
+    call = protocol_spy[-1]
+    assert call["schedule"] is protocol.FULL
+    assert tuple(call["exclude_settings"]) == ()  # nothing excluded by default with --data
+    assert call["n_jobs"] == -1
+    assert len(call["X"]) == len(X)
+    np.testing.assert_allclose(call["y"], y, rtol=1e-12)
+
+    with pytest.raises(_Stop):
+        main([*base, "--seeds", "3", "4", "3", "--n-jobs", "2", "--exclude-settings", "S00", "S01"])
+    call = protocol_spy[-1]
+    assert call["schedule"].seeds == (3, 4)
+    assert call["schedule"].name == protocol.FULL.name
+    assert call["schedule"].pretrain_params == protocol.FULL.pretrain_params
+    assert call["n_jobs"] == 2
+    assert list(call["exclude_settings"]) == ["S00", "S01"]
+
+    with pytest.raises(_Stop):
+        main([*base, "--quick"])
+    assert protocol_spy[-1]["schedule"] is protocol.QUICK
+
+    with pytest.raises(_Stop):
+        main([*base, "--quick", "--seeds", "5"])
+    schedule = protocol_spy[-1]["schedule"]
+    assert schedule.seeds == (5,)
+    assert (schedule.name, schedule.n_setting_folds) == (protocol.QUICK.name, protocol.QUICK.n_setting_folds)
+
+
+def test_reproduce_builtin_benchmark_excludes_the_straight_setting(
+    reproduce_data, protocol_spy, tmp_path, monkeypatch
+):
+    from skcath import datasets
+
+    _, X, y = reproduce_data
+    requested = {}
+
+    def fake_benchmark(**kwargs):
+        requested.update(kwargs)
+        return Bunch(X=X, y=y)
+
+    monkeypatch.setattr(datasets, "make_benchmark", fake_benchmark)
+    with pytest.raises(_Stop):
+        main(["reproduce", "--out", str(tmp_path), "--no-figures", "--mechanism", "bouc_wen"])
+    assert tuple(protocol_spy[-1]["exclude_settings"]) == ("S00",)
+    assert requested["mechanism"] == "bouc_wen"
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--n-jobs", "0"], "argument --n-jobs"),
+        (["--n-jobs", "two"], "argument --n-jobs"),
+        (["--seeds", "-1"], "argument --seeds: expected a non-negative"),
+        (["--data", "does-not-exist.csv"], "argument --data"),
+    ],
+)
+def test_reproduce_bad_arguments_exit_2(extra, message, reproduce_data, tmp_path, monkeypatch, capsys):
+    path, _, _ = reproduce_data
+    monkeypatch.chdir(tmp_path)
+    argv = ["reproduce", "--data", str(path), "--out", str(tmp_path / "out"), "--no-figures", *extra]
+    with pytest.raises(SystemExit) as excinfo:
+        main(argv)
+    assert excinfo.value.code == 2
+    err = capsys.readouterr().err
+    assert "error:" in err and message in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_reproduce_single_catheter_is_a_usage_error(reproduce_data, tmp_path, capsys):
+    _, X, y = reproduce_data
+    one = (X["catheter"].astype(str) == "C1").to_numpy()
+    frame = X[one].copy()
+    for k, axis in enumerate("xyz"):
+        frame[f"p_{axis}"] = y[one, k]
+    path = tmp_path / "one.csv"
+    frame.to_csv(path, index=False)
+    with pytest.raises(SystemExit) as excinfo:
+        main(["reproduce", "--data", str(path), "--out", str(tmp_path / "out"), "--no-figures"])
+    assert excinfo.value.code == 2
+    assert "catheter" in capsys.readouterr().err

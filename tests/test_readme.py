@@ -65,16 +65,19 @@ def test_ci_script_is_strict():
 
 
 def test_readme_main_job_command_parses():
-    found = _commands("-m skcath benchmark")
+    found = _commands("-m skcath reproduce")
     assert len(found) == 1, f"expected one fresh-machine main-job command in README.md, got {found}"
     command = found[0]
-    assert "-c constraints.txt -e ." in command
-    # The arguments after `-m skcath` must be accepted by the command line.
+    # matplotlib (the `plot` extra) draws the figures the command writes.
+    assert '-c constraints.txt -e ".[plot]"' in command
+    # The arguments after `-m skcath` must be accepted by the command line:
+    # the quick form of the paper's protocol.
     from skcath._cli import build_parser
 
     words = shlex.split(command.split("&&")[-1])
     args = build_parser().parse_args(words[words.index("skcath") + 1 :])
-    assert args.command == "benchmark"
+    assert args.command == "reproduce"
+    assert args.quick
 
 
 def test_readme_documents_docs_build():

@@ -1,0 +1,101 @@
+"""Training schedules of the evaluation protocol: which models, seeds and folds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["Schedule", "QUICK", "FULL", "VARIANTS", "get_schedule"]
+
+#: Learned methods of the protocol: display name -> (learner, use_torque, use_context).
+#: ``PDL+GRU`` is the proposed estimator; the others are the paper's ablations.
+VARIANTS = {
+    "PDL+GRU": ("gru", True, True),
+    "PDL+MLP": ("mlp", True, True),
+    "PDL+GRU (no torque)": ("gru", False, True),
+    "PDL+GRU (no context)": ("gru", True, False),
+    "PDL+GRU (no torque, no context)": ("gru", False, False),
+}
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """How much training the protocol spends.
+
+    Every learned method is trained in two stages, as in the paper: a model
+    is pretrained once per held-out catheter on all the *other* catheters
+    (that model is also the leave-one-catheter-out estimator), then, within
+    the held-out catheter, fine-tuned from it on the settings of each fold's
+    training set and evaluated on the fold's held-out settings. The test runs
+    of a fold therefore never reach pretraining, fine-tuning or the
+    normalisation statistics (which come from the pretraining data).
+
+    Parameters
+    ----------
+    name : str
+        Label printed with the results.
+    seeds : tuple of int
+        Seeds of the learned models; errors are averaged over them.
+    n_setting_folds : int or None
+        None holds out one setting at a time within each catheter
+        (:class:`~skcath.model_selection.LeaveOneSettingOut`, the paper's
+        protocol); an int splits each catheter's settings into that many
+        groups (:class:`~skcath.model_selection.SettingGroupKFold`).
+    variants : tuple of str
+        Names of the learned methods to run (keys of ``VARIANTS``).
+    model_params : dict
+        Parameters shared by both stages (architecture, windows).
+    pretrain_params : dict
+        Parameters of the pretraining stage (epochs, learning rate).
+    finetune_params : dict
+        Parameters of the fine-tuning stage.
+    """
+
+    name: str
+    seeds: tuple = (0, 1, 2)
+    n_setting_folds: int | None = None
+    variants: tuple = tuple(VARIANTS)
+    model_params: dict = field(default_factory=dict)
+    pretrain_params: dict = field(default_factory=dict)
+    finetune_params: dict = field(default_factory=dict)
+
+
+#: The paper's protocol: one setting held out at a time, three seeds, every
+#: variant, the learners' default architecture.
+FULL = Schedule(
+    name="full",
+    seeds=(0, 1, 2),
+    n_setting_folds=None,
+    pretrain_params={"max_epochs": 20, "lr": 1e-2},
+    finetune_params={"max_epochs": 8, "lr": 3e-3},
+)
+
+#: A short version for a first look (about ten minutes on two CPU cores):
+#: one seed, four setting folds per catheter, smaller networks and fewer
+#: epochs. Its numbers are higher than the full protocol's.
+QUICK = Schedule(
+    name="quick",
+    seeds=(0,),
+    n_setting_folds=4,
+    model_params={"module__hidden_size": 64, "window_step": 200},
+    pretrain_params={"max_epochs": 4, "lr": 1e-2},
+    finetune_params={"max_epochs": 3, "lr": 3e-3},
+)
+
+
+def get_schedule(schedule):
+    """Return a :class:`Schedule` from a name (``"full"``, ``"quick"``) or a Schedule."""
+    if isinstance(schedule, Schedule):
+        unknown = sorted(set(schedule.variants) - set(VARIANTS))
+        if unknown:
+            raise ValueError(
+                f"schedule.variants has unknown names {unknown}; expected names from {list(VARIANTS)}."
+            )
+        if not schedule.seeds:
+            raise ValueError("schedule.seeds must name at least one seed.")
+        if len(set(schedule.seeds)) != len(schedule.seeds):
+            raise ValueError(f"schedule.seeds must not repeat a seed; got {schedule.seeds}.")
+        return schedule
+    named = {"full": FULL, "quick": QUICK}
+    if schedule not in named:
+        raise ValueError(f"schedule must be 'full', 'quick' or a Schedule; got {schedule!r}.")
+    return named[schedule]
