@@ -77,6 +77,12 @@ def _seed(text: str) -> int:
     return value
 
 
+def _variant_names():
+    from .protocol import VARIANTS
+
+    return list(VARIANTS)
+
+
 def _add_mechanism_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mechanism",
@@ -202,6 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="S",
         help="seeds of the learned models (default: 0 1 2, or 0 with --quick)",
+    )
+    repro.add_argument(
+        "--variants",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="learned methods to run, among: " + ", ".join(repr(v) for v in _variant_names())
+        + " (default: all; the tables of methods not run are left out)",
     )
     repro.add_argument(
         "--exclude-settings",
@@ -410,6 +424,13 @@ def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
     schedule = protocol.QUICK if args.quick else protocol.FULL
     if args.seeds is not None:
         schedule = dataclasses.replace(schedule, seeds=tuple(dict.fromkeys(args.seeds)))
+    if args.variants is not None:
+        unknown = [v for v in args.variants if v not in protocol.VARIANTS]
+        if unknown:
+            parser.error(f"argument --variants: unknown {unknown}; expected names among {list(protocol.VARIANTS)}")
+        if "PDL+GRU" not in args.variants:
+            parser.error("argument --variants: 'PDL+GRU' is required (Table I and the comparisons use it)")
+        schedule = dataclasses.replace(schedule, variants=tuple(dict.fromkeys(args.variants)))
     exclude = args.exclude_settings
     if exclude is None:
         exclude = () if args.data is not None else (STRAIGHT_SETTING,)

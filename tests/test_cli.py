@@ -323,6 +323,12 @@ def test_reproduce_seeds_and_schedule_choice(reproduce_data, protocol_spy, tmp_p
     assert schedule.seeds == (5,)
     assert (schedule.name, schedule.n_setting_folds) == (protocol.QUICK.name, protocol.QUICK.n_setting_folds)
 
+    with pytest.raises(_Stop):
+        main([*base, "--variants", "PDL+GRU", "PDL+MLP", "PDL+GRU"])
+    schedule = protocol_spy[-1]["schedule"]
+    assert schedule.variants == ("PDL+GRU", "PDL+MLP")
+    assert schedule.finetune_params == protocol.FULL.finetune_params
+
 
 def test_reproduce_builtin_benchmark_excludes_the_straight_setting(
     reproduce_data, protocol_spy, tmp_path, monkeypatch
@@ -350,6 +356,8 @@ def test_reproduce_builtin_benchmark_excludes_the_straight_setting(
         (["--n-jobs", "two"], "argument --n-jobs"),
         (["--seeds", "-1"], "argument --seeds: expected a non-negative"),
         (["--data", "does-not-exist.csv"], "argument --data"),
+        (["--variants", "PDL+LSTM"], "argument --variants: unknown"),
+        (["--variants", "PDL+MLP"], "argument --variants: 'PDL+GRU' is required"),
     ],
 )
 def test_reproduce_bad_arguments_exit_2(extra, message, reproduce_data, tmp_path, monkeypatch, capsys):

@@ -7,6 +7,8 @@ that record what each model is trained and evaluated on and then call the
 original functions, so the recorded run is an ordinary protocol run.
 """
 
+import copy
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -446,10 +448,24 @@ def test_residual_learners_and_ablation_tables(tables):
         (learners.loc["PDL+MLP"] - learners.loc["PDL+GRU"]).to_numpy(float),
         rtol=1e-9,
     )
-    # only the full model of the torque x context grid was run
+    # only the full model of the torque x context grid was run: no ablation table
+    assert "table_2" not in tables
+    assert "Table II." not in format_report(tables)
+
+
+def test_ablation_table_when_ablations_were_run(result):
+    """Table II lists each torque/context combination that was run, with its own errors."""
+    ablated = {seed: pred + 1.0 for seed, pred in result.predictions["PDL+GRU"].items()}
+    with_ablation = copy.copy(result)
+    with_ablation.predictions = {**result.predictions, "PDL+GRU (no context)": ablated}
+    tables = compute_tables(with_ablation, n_bootstrap=N_BOOTSTRAP, random_state=0)
     table_2 = tables["table_2"]
-    assert list(table_2.index) == [("Yes", "Yes")]
-    assert_allclose(table_2.iloc[0].to_numpy(float), tables["table_1"].loc["PDL+GRU"].to_numpy(float))
+    assert list(table_2.index) == [("Yes", "No"), ("Yes", "Yes")]
+    assert_allclose(table_2.loc[("Yes", "Yes")].to_numpy(float), tables["table_1"].loc["PDL+GRU"].to_numpy(float))
+    assert (table_2.loc[("Yes", "No")] > table_2.loc[("Yes", "Yes")]).all()
+    paired = tables["paired"].set_index(["comparison", "scope"])
+    assert paired.loc[("context (with torque)", "pooled"), "reduction_mm"] > 0
+    assert "Table II." in format_report(tables)
 
 
 def test_loco_table(tables):
@@ -487,7 +503,7 @@ def test_magnitude_and_time_tables(tables):
 def test_format_report(tables, result):
     text = format_report(tables, result)
     for title in (
-        "Table I.", "Table II.", "Residual learners", "Leave one catheter out",
+        "Table I.", "Residual learners", "Leave one catheter out",
         "Samples below 5 mm", "RMSE by motor-input magnitude", "RMSE over motion time",
         "Paired reductions",
     ):

@@ -54,10 +54,17 @@ def _finetune(key, params, pretrained, X_train, y_train, X_test):
     return key, None, model.predict(X_test), time.perf_counter() - start
 
 
-def _run_tasks(tasks, n_jobs, desc, verbose):
-    """Run delayed tasks with joblib, with a progress bar over finished tasks."""
-    results = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(tasks)
-    bar = tqdm(total=len(tasks), desc=desc, unit="model", disable=not verbose, dynamic_ncols=True)
+def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
+    """Run delayed tasks with joblib, with a progress bar over finished tasks.
+
+    ``tasks`` is a generator, so that each task's training data is sliced only
+    when the task is dispatched; ``max_nbytes=None`` sends the slices to the
+    workers by pickling instead of memory-mapping them, because joblib keeps
+    every memory-mapped argument until the whole batch of tasks ends, which
+    would hold hundreds of training sets in memory at once.
+    """
+    results = Parallel(n_jobs=n_jobs, return_as="generator_unordered", max_nbytes=None)(tasks)
+    bar = tqdm(total=n_tasks, desc=desc, unit="model", disable=not verbose, dynamic_ncols=True)
     out = []
     with bar:
         for result in results:
@@ -151,14 +158,16 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
 
     pre_params = {**schedule.model_params, **schedule.pretrain_params}
     fine_params = {**schedule.model_params, **schedule.finetune_params}
-    tasks = []
-    for train, test in loco_folds:
-        catheter = str(X[fmt.CATHETER].iloc[test[0]])
-        for variant in schedule.variants:
-            for seed in schedule.seeds:
-                key = {"variant": variant, "seed": seed, "catheter": catheter, "test": test}
-                X_test = Xb.iloc[test] if variant == LOCO_VARIANT else None
-                tasks.append(delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], X_test))
+    def pretrain_tasks():
+        for train, test in loco_folds:
+            catheter = str(X[fmt.CATHETER].iloc[test[0]])
+            for variant in schedule.variants:
+                for seed in schedule.seeds:
+                    key = {"variant": variant, "seed": seed, "catheter": catheter, "test": test}
+                    X_test = Xb.iloc[test] if variant == LOCO_VARIANT else None
+                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], X_test)
+
+    n_models = len(schedule.variants) * len(schedule.seeds)
     pretrained = {}
     predictions = {"PCC": {None: pcc}, "PDL": {None: pdl}}
 
@@ -167,24 +176,30 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         target[rows] = values
 
     timings = []
-    for key, model, pred, seconds in _run_tasks(tasks, n_jobs, "pretraining", verbose):
+    for key, model, pred, seconds in _run_tasks(
+        pretrain_tasks(), n_models * len(loco_folds), n_jobs, "pretraining", verbose
+    ):
         pretrained[key["variant"], key["seed"], key["catheter"]] = model
         if key["variant"] == LOCO_VARIANT:
             store(f"{LOCO_VARIANT} (LOCO)", key["seed"], key["test"], pred)
         timings.append({"stage": "pretrain", "variant": key["variant"], "seed": key["seed"],
                         "catheter": key["catheter"], "seconds": seconds})
 
-    tasks = []
-    for fold, (train, test) in enumerate(within_folds):
-        catheter = str(X[fmt.CATHETER].iloc[test[0]])
-        for variant in schedule.variants:
-            for seed in schedule.seeds:
-                key = {"variant": variant, "seed": seed, "catheter": catheter, "fold": fold, "test": test}
-                tasks.append(delayed(_finetune)(
-                    key, fine_params, pretrained[variant, seed, catheter],
-                    Xb.iloc[train], y[train], Xb.iloc[test],
-                ))
-    for key, _, pred, seconds in _run_tasks(tasks, n_jobs, "fine-tuning", verbose):
+    def finetune_tasks():
+        for fold, (train, test) in enumerate(within_folds):
+            catheter = str(X[fmt.CATHETER].iloc[test[0]])
+            for variant in schedule.variants:
+                for seed in schedule.seeds:
+                    key = {"variant": variant, "seed": seed, "catheter": catheter, "fold": fold,
+                           "test": test}
+                    yield delayed(_finetune)(
+                        key, fine_params, pretrained[variant, seed, catheter],
+                        Xb.iloc[train], y[train], Xb.iloc[test],
+                    )
+
+    for key, _, pred, seconds in _run_tasks(
+        finetune_tasks(), n_models * len(within_folds), n_jobs, "fine-tuning", verbose
+    ):
         store(key["variant"], key["seed"], key["test"], pred)
         timings.append({"stage": "fine-tune", "variant": key["variant"], "seed": key["seed"],
                         "catheter": key["catheter"], "seconds": seconds})

@@ -153,7 +153,7 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
         "time_bins": time_bins,
     }
     table_2 = _by_catheter(run_rmse, TORQUE_CONTEXT.values(), catheters)
-    if not table_2.empty:
+    if len(table_2) > 1:  # an ablation table needs at least one ablated variant
         names = {m: tc for tc, m in TORQUE_CONTEXT.items()}
         table_2.index = pd.MultiIndex.from_tuples([names[m] for m in table_2.index], names=["torque", "context"])
         tables["table_2"] = table_2
