@@ -127,13 +127,13 @@ def _input_format_failure(exc):
     return False
 
 
-@parametrize_with_checks(
-    ESTIMATORS, expected_failed_checks=_expected_failed_checks, xfail_strict=True
-)
-def test_sklearn_compatible_estimator(estimator, check):
-    # strict: a listed check that passes is reported as a failure
+def run_check(estimator, check, expected_failures):
+    """Run one sklearn check; an expected failure raises a short AssertionError.
+
+    Strict: a listed check that passes is reported as a failure (xfail_strict).
+    """
     name = _check_name(check)
-    if name not in EXPECTED_FAILED_CHECKS:
+    if name not in expected_failures:
         check(estimator)
         return
     try:
@@ -142,6 +142,13 @@ def test_sklearn_compatible_estimator(estimator, check):
         # a short error instead of the check's traceback: formatting tracebacks
         # through estimator_checks.py for every expected failure takes seconds
         raise AssertionError(f"{name}: {type(exc).__name__}: {exc}"[:500]) from None
+
+
+@parametrize_with_checks(
+    ESTIMATORS, expected_failed_checks=_expected_failed_checks, xfail_strict=True
+)
+def test_sklearn_compatible_estimator(estimator, check):
+    run_check(estimator, check, EXPECTED_FAILED_CHECKS)
 
 
 @pytest.mark.parametrize("estimator", ESTIMATORS, ids=lambda e: type(e).__name__)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 import sys
 import time
 
@@ -17,12 +16,11 @@ from .. import _format as fmt
 from .._validation import check_recordings
 from ..backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
+from ..model_selection._split import _exclusion_set
 from ..residuals import GRUResidual, MLPResidual
 from ._schedule import VARIANTS, get_schedule
 
 __all__ = ["run_protocol"]
-
-logger = logging.getLogger(__name__)
 
 #: The learned method whose pretrained models are reported as leave-one-catheter-out.
 LOCO_VARIANT = "PDL+GRU"
@@ -73,14 +71,6 @@ def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
     return out
 
 
-def _check_exclude(exclude_settings):
-    if exclude_settings is None:
-        return ()
-    if isinstance(exclude_settings, str):
-        return (exclude_settings,)
-    return tuple(str(s) for s in exclude_settings)
-
-
 def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verbose=False):
     """Run the paper's evaluation protocol on a set of recordings.
 
@@ -125,7 +115,7 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         trained model, s) and ``elapsed`` (total wall time, s).
     """
     schedule = get_schedule(schedule)
-    exclude = _check_exclude(exclude_settings)
+    exclude = tuple(sorted(_exclusion_set(exclude_settings)))
     X, y = check_recordings(X, y)
     if y is None:
         raise ValueError("y (the measured tip positions, mm) is required to run the protocol.")

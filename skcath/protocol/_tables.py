@@ -47,10 +47,9 @@ COMPARISONS = {
 CDF_GRID = np.round(np.arange(0.0, 30.0 + 1e-9, 0.25), 2)
 
 
-def _seed_mean(frames, keys):
-    """Average a per-seed long table over seeds on the given key columns."""
+def _seed_mean(frames, keys, value="rmse_mm"):
+    """Average the ``value`` column of per-seed long tables over seeds, per key."""
     table = pd.concat(frames, ignore_index=True)
-    value = [c for c in table.columns if c not in keys][-1]
     return table.groupby(keys, sort=False, observed=True)[value].mean().reset_index()
 
 
@@ -130,7 +129,7 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
         runs = _seed_mean(seed_runs, [fmt.RUN])
         runs = runs.join(info, on=fmt.RUN)
         run_tables.append(runs.assign(method=method))
-        cdfs.append(_seed_mean(seed_cdf, ["error_mm"]).assign(method=method))
+        cdfs.append(_seed_mean(seed_cdf, ["error_mm"], "fraction").assign(method=method))
         mags.append(_seed_mean(seed_mag, [fmt.RUN, "bin_left", "bin_right"]).assign(method=method))
         times.append(_seed_mean(seed_time, [fmt.RUN, "bin_left", "bin_right"]).assign(method=method))
 
