@@ -116,8 +116,8 @@ def _windows(est, Xb, y):
     """Training windows as ``fit`` builds them, the step counts, and the prep time."""
     start = time.perf_counter()
     X_, y_ = est._check_X(Xb, y)
-    F, motion, sweep = est._sequences(X_, y_)
-    est._fit_statistics(F, motion, sweep, y_)
+    F, motion, sweep, e, _ = est._sequences(X_, y_)
+    est._fit_statistics(F, e)
     data, target = est._training_windows(X_, motion, sweep)
     prep_s = time.perf_counter() - start
     step = est.window_step or max(est.window - est.burn_in, 1)

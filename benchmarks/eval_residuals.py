@@ -16,6 +16,7 @@ Usage::
     python benchmarks/eval_residuals.py                    # catheter C1, one seed
     python benchmarks/eval_residuals.py --catheters C1 C2 C3 C4
     python benchmarks/eval_residuals.py --max-epochs 5     # quick check
+    python benchmarks/eval_residuals.py --frame base       # residual in the base-sensor frame
 """
 
 import argparse
@@ -39,9 +40,11 @@ from _machine import machine_lines  # noqa: E402
 PAPER_C1 = {"PDL": 6.9, "PDL+GRU": 3.6, "PDL+GRU (no context)": 3.6, "PDL+MLP": None}
 
 
-def variants(seed, max_epochs):
+def variants(seed, max_epochs, frame=None):
     """Residual step of every variant (one torch thread each: folds run in parallel)."""
     extra = {} if max_epochs is None else {"max_epochs": max_epochs}
+    if frame is not None:
+        extra["frame"] = frame
     common = {"random_state": seed, "n_threads": 1, **extra}
     return {
         "PDL": NoResidual(),
@@ -72,17 +75,19 @@ def main():
     parser.add_argument("--max-epochs", type=int, default=None,
                         help="override the learners' max_epochs (default: their default)")
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument("--frame", choices=("sweep", "base"), default=None,
+                        help="the learners' frame parameter (default: their default, sweep)")
     args = parser.parse_args()
 
     data = make_benchmark()
-    names = args.variants or list(variants(args.seed, args.max_epochs))
+    names = args.variants or list(variants(args.seed, args.max_epochs, args.frame))
     rows, folds = {}, []
     for catheter in args.catheters:
         keep = ((data.X["catheter"] == catheter) & (data.X["setting"] != "S00")).to_numpy()
         X = data.X[keep].reset_index(drop=True)
         y = np.asarray(data.y)[keep]
         for name in names:
-            residual = variants(args.seed, args.max_epochs)[name]
+            residual = variants(args.seed, args.max_epochs, args.frame)[name]
             start = time.perf_counter()
             scores, fit_times = evaluate(X, y, residual, args.n_jobs)
             wall = time.perf_counter() - start

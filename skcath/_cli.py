@@ -218,6 +218,13 @@ def build_parser() -> argparse.ArgumentParser:
         + " (default: all; the tables of methods not run are left out)",
     )
     repro.add_argument(
+        "--frame",
+        choices=("sweep", "base"),
+        default=None,
+        help="frame of the residual learners (their `frame` parameter): each run's sweep frame, "
+        "or the base-sensor frame as in the paper (default: the learners' default, sweep)",
+    )
+    repro.add_argument(
         "--exclude-settings",
         nargs="*",
         default=None,
@@ -431,6 +438,8 @@ def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
         if "PDL+GRU" not in args.variants:
             parser.error("argument --variants: 'PDL+GRU' is required (Table I and the comparisons use it)")
         schedule = dataclasses.replace(schedule, variants=tuple(dict.fromkeys(args.variants)))
+    if args.frame is not None:
+        schedule = dataclasses.replace(schedule, model_params={**schedule.model_params, "frame": args.frame})
     exclude = args.exclude_settings
     if exclude is None:
         exclude = () if args.data is not None else (STRAIGHT_SETTING,)

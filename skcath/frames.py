@@ -14,6 +14,14 @@ and :math:`R_{WB}` is the orientation of the base sensor in W. Expressed in
 B, the tip position no longer depends on where the catheter lies in the
 tracker volume, only on how the bending section is bent.
 
+A second frame, the **sweep frame** S (:func:`sweep_frame`), is fixed by the
+bending response that a run's initial sweep measures: its z axis points from
+the base to the neutral tip and its x axis along the tip's motion when the
+first motor turns positive. Expressed in S, residuals of different catheters
+no longer depend on how the base sensor happens to be mounted (its roll about
+the catheter and its tilt), which is what lets a residual learner trained on
+some catheters transfer to another.
+
 Quaternions are accepted scalar first (``"wxyz"``, as NDI Aurora exports
 write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
 """
@@ -21,7 +29,7 @@ write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["QUAT_ORDERS", "quaternion_to_rotation", "tip_in_base_frame"]
+__all__ = ["QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
 
 #: Accepted quaternion component orders: scalar first or scalar last.
 QUAT_ORDERS = ("wxyz", "xyzw")
@@ -345,3 +353,105 @@ def _check_offset(tip_offset):
             f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
         )
     return offset
+
+
+#: Smallest tip motion (mm) across the first motor's sweep range, normal to the
+#: neutral direction, for the sweep frame's x axis to be defined.
+_MIN_FRAME_MOTION_MM = 1e-3
+
+
+def sweep_frame(q, p, *, run=None):
+    r"""Rotation from the base frame B to the sweep frame S of one run.
+
+    The tip positions of the sweep are fitted by a quadratic in the motor
+    angles, :math:`p(q) \approx c + A q + Q(q)`, by least squares. The axes of
+    S, expressed in B, are
+
+    .. math::
+
+        e_z = \frac{c}{\lVert c \rVert}, \qquad
+        e_x = \frac{a_1 - (a_1 \cdot e_z) e_z}{\lVert a_1 - (a_1 \cdot e_z) e_z \rVert},
+        \qquad e_y = e_z \times e_x,
+
+    where :math:`c` is the fitted neutral tip and :math:`a_1` the first
+    column of :math:`A` (the tip's motion per degree of the first motor at
+    neutral). The returned matrix :math:`R_{SB}` has rows
+    :math:`e_x, e_y, e_z`, so that a vector ``v`` in B is ``R @ v`` in S.
+    Rotating every tip position of a run by any rotation ``G`` turns the
+    result into ``R @ G.T``: vectors expressed in S do not change.
+
+    Parameters
+    ----------
+    q : array-like of shape (n, 2)
+        Motor angles of the sweep samples (degrees). The sweep must move both
+        motors (at least six samples that do not lie on one conic).
+    p : array-like of shape (n, 3)
+        Tip positions of the same samples in the base frame (mm): the EM
+        reference, or a backbone's nominal tip. Rows with a non-finite value
+        are ignored.
+    run : str, optional
+        Run id, named in error messages.
+
+    Returns
+    -------
+    R : ndarray of shape (3, 3)
+        Rotation matrix :math:`R_{SB}` (orthonormal, determinant 1).
+
+    Raises
+    ------
+    ValueError
+        If the shapes are wrong, fewer than six finite samples remain, the
+        motor angles do not determine a quadratic (e.g. only one motor
+        moves), or the tip does not move along the first motor's direction.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skcath.frames import sweep_frame
+    >>> q = np.array([[0, 0], [30, 0], [-30, 0], [0, 30], [0, -30], [20, 20], [-20, 20]])
+    >>> p = np.c_[q[:, 1] * 0.5, -q[:, 0] * 0.5, np.full(7, 50.0)]  # q1 moves the tip to -y
+    >>> sweep_frame(q, p).round(3) + 0.0
+    array([[ 0., -1.,  0.],
+           [ 1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
+    """
+    where = "" if run is None else f" of run {run!r}"
+    q = _as_float_rows(q, "q", 2)
+    p = _as_float_rows(p, "p", 3)
+    if q.shape[0] != p.shape[0]:
+        raise ValueError(
+            f"q and p must have the same number of rows{where}; got {q.shape[0]} and {p.shape[0]}."
+        )
+    keep = np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
+    q, p = q[keep], p[keep]
+    if q.shape[0] < 6:
+        raise ValueError(
+            f"The sweep frame{where} needs at least 6 sweep samples with finite motor "
+            f"angles and tip positions; got {q.shape[0]}."
+        )
+    q1, q2 = q[:, 0], q[:, 1]
+    design = np.column_stack([np.ones_like(q1), q1, q2, q1 * q1, q1 * q2, q2 * q2])
+    scale = np.abs(design).max(axis=0)
+    scale[scale == 0] = 1.0
+    coef, _, rank, _ = np.linalg.lstsq(design / scale, p, rcond=None)
+    if rank < design.shape[1]:
+        raise ValueError(
+            f"The motor angles of the sweep{where} do not determine the sweep frame: "
+            "a quadratic fit in (q1, q2) is rank deficient. The sweep must move both "
+            "motors in several directions (the 8-ray sweep does)."
+        )
+    coef = coef / scale[:, None]
+    neutral, a1 = coef[0], coef[1]
+    norm = np.linalg.norm(neutral)
+    if not norm > 0:
+        raise ValueError(f"The fitted neutral tip of the sweep{where} is at the base frame's origin.")
+    ez = neutral / norm
+    ex = a1 - (a1 @ ez) * ez
+    moved = np.linalg.norm(ex) * max(np.ptp(q1), 1.0)
+    if not moved > _MIN_FRAME_MOTION_MM:
+        raise ValueError(
+            f"The tip does not move when the first motor turns in the sweep{where}, so "
+            "the sweep frame's x axis is undefined."
+        )
+    ex = ex / np.linalg.norm(ex)
+    return np.stack([ex, np.cross(ez, ex), ez])

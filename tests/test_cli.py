@@ -328,6 +328,13 @@ def test_reproduce_seeds_and_schedule_choice(reproduce_data, protocol_spy, tmp_p
     schedule = protocol_spy[-1]["schedule"]
     assert schedule.variants == ("PDL+GRU", "PDL+MLP")
     assert schedule.finetune_params == protocol.FULL.finetune_params
+    assert "frame" not in schedule.model_params  # the learners' own default
+
+    with pytest.raises(_Stop):
+        main([*base, "--quick", "--frame", "base"])
+    schedule = protocol_spy[-1]["schedule"]
+    assert schedule.model_params == {**protocol.QUICK.model_params, "frame": "base"}
+    assert "frame" not in protocol.QUICK.model_params  # the shared schedule is not modified
 
 
 def test_reproduce_builtin_benchmark_excludes_the_straight_setting(
@@ -358,6 +365,7 @@ def test_reproduce_builtin_benchmark_excludes_the_straight_setting(
         (["--data", "does-not-exist.csv"], "argument --data"),
         (["--variants", "PDL+LSTM"], "argument --variants: unknown"),
         (["--variants", "PDL+MLP"], "argument --variants: 'PDL+GRU' is required"),
+        (["--frame", "tip"], "argument --frame: invalid choice"),
     ],
 )
 def test_reproduce_bad_arguments_exit_2(extra, message, reproduce_data, tmp_path, monkeypatch, capsys):

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
-from skcath.frames import quaternion_to_rotation, tip_in_base_frame
+from skcath.frames import quaternion_to_rotation, sweep_frame, tip_in_base_frame
 
 IDENTITY_WXYZ = np.array([[1.0, 0.0, 0.0, 0.0]])
 
@@ -271,3 +271,80 @@ def test_round_trip_property(quat, base, p_b, scalar_first):
     tip = np.asarray(base) + r_wb.apply(np.asarray(p_b))
     out = tip_in_base_frame(tip[None, :], [base], q[None, :], quat_order=order)
     assert_allclose(out[0], p_b, atol=1e-9)
+
+
+# ---------------------------------------------------------------------------
+# sweep_frame
+# ---------------------------------------------------------------------------
+def _sweep(rng, n=400):
+    """Motor angles of an 8-ray sweep and a bending section's tip (mm, sensor frame).
+
+    The section bends towards +x for q1 and +y for q2 (constant curvature,
+    42 mm), seen from a base sensor that is rolled by 70 degrees and tilted
+    by 30 degrees; positions carry 0.2 mm of noise.
+    """
+    psi = np.repeat(np.deg2rad(np.arange(8) * 45.0), n // 8)
+    rho = np.tile(np.r_[np.linspace(0, 60, n // 16), np.linspace(60, 0, n // 16)], 8)
+    q = np.c_[rho * np.cos(psi), rho * np.sin(psi)]
+    theta = np.deg2rad(np.hypot(*q.T) * 2.0)
+    delta = np.arctan2(q[:, 1], q[:, 0])
+    L = 42.0
+    k = np.maximum(theta, 1e-9) / L
+    tip = np.c_[
+        np.cos(delta) * (1 - np.cos(theta)) / k, np.sin(delta) * (1 - np.cos(theta)) / k, np.sin(theta) / k
+    ]
+    mount = Rotation.from_euler("zx", [70.0, 30.0], degrees=True)
+    return q, mount.inv().apply(tip) + rng.normal(0.0, 0.2, tip.shape), mount
+
+
+def test_sweep_frame_recovers_the_bending_axes():
+    rng = np.random.default_rng(0)
+    q, p, mount = _sweep(rng)
+    R = sweep_frame(q, p)
+    assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    # the base sensor's mount is undone: S is the bending section's own frame
+    assert_allclose(R, mount.as_matrix(), atol=0.02)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_vectors_in_the_sweep_frame_do_not_depend_on_the_mount(seed):
+    rng = np.random.default_rng(seed)
+    q, p, _ = _sweep(rng, n=160)
+    G = Rotation.random(random_state=rng).as_matrix()
+    R = sweep_frame(q, p)
+    R_rotated = sweep_frame(q, p @ G.T)
+    assert_allclose(R_rotated, R @ G.T, atol=1e-9)
+
+
+def test_sweep_frame_skips_non_finite_rows_and_leaves_inputs_alone():
+    rng = np.random.default_rng(1)
+    q, p, _ = _sweep(rng)
+    p_gaps = p.copy()
+    p_gaps[::7] = np.nan
+    q_copy, p_copy = q.copy(), p_gaps.copy()
+    R = sweep_frame(q, p_gaps)
+    assert_allclose(R, sweep_frame(q[~np.isnan(p_gaps[:, 0])], p[~np.isnan(p_gaps[:, 0])]))
+    assert_allclose(q, q_copy)
+    assert_allclose(p_gaps, p_copy)
+
+
+def test_sweep_frame_errors():
+    rng = np.random.default_rng(2)
+    q, p, _ = _sweep(rng)
+    with pytest.raises(ValueError, match=r"q must have shape \(n, 2\)"):
+        sweep_frame(q[:, :1], p)
+    with pytest.raises(ValueError, match=r"p must have shape \(n, 3\)"):
+        sweep_frame(q, p[:, :2])
+    with pytest.raises(ValueError, match="same number of rows of run 'R7'"):
+        sweep_frame(q, p[:-1], run="R7")
+    with pytest.raises(ValueError, match="at least 6 sweep samples"):
+        sweep_frame(q[:5], p[:5])
+    one_motor = q.copy()
+    one_motor[:, 1] = 0.0
+    with pytest.raises(ValueError, match="rank deficient"):
+        sweep_frame(one_motor, p)
+    still = np.tile(p[:1], (len(p), 1))
+    with pytest.raises(ValueError, match="does not move when the first motor turns"):
+        sweep_frame(q, still)

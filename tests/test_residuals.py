@@ -24,6 +24,7 @@ import pandas as pd
 import pytest
 import torch
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy.spatial.transform import Rotation
 from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 from sklearn.frozen import FrozenEstimator
@@ -811,6 +812,8 @@ def test_pretrained_errors(Est, small, fitted):
     other = MLPResidual if Est is GRUResidual else GRUResidual
     with pytest.raises(TypeError, match=Est.__name__):
         _tiny(Est, pretrained=fitted(other)[0]).fit(Xb, y)
+    with pytest.raises(ValueError, match="frame"):
+        _tiny(Est, frame="base", pretrained=FrozenEstimator(source)).fit(Xb, y)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)
@@ -977,12 +980,49 @@ def test_without_context_the_sweep_is_not_used(Est, small, fitted):
     other_sweep = Xb.copy()
     for c in ("q1", "q2", "tau1", "tau2"):
         other_sweep.loc[change, c] = rng.normal(0.0, 20.0, change.sum())
-    est = _tiny(Est, use_context=False).fit(Xb, y)
+    # frame="sweep" would read the sweep for the frame; the context must not
+    est = _tiny(Est, use_context=False, frame="base").fit(Xb, y)
     assert est.module_.encoder is None
     pred = est.predict(Xb)
     assert_array_equal(est.predict(other_sweep), pred)
     with_context, pred_context = fitted(Est)
     assert np.abs(with_context.predict(other_sweep) - pred_context).max() > 1e-4
+
+
+def _remounted(Xb, y, runs, rotations):
+    """Recordings of ``runs`` seen from base sensors rotated by ``rotations`` (3x3 each)."""
+    Xr, yr = Xb.copy(), y.copy()
+    for run, G in zip(runs, rotations):
+        rows = (Xb["run"].astype(str) == run).to_numpy()
+        for cols in (B, REF):
+            Xr.loc[rows, cols] = Xb.loc[rows, cols].to_numpy() @ G.T
+        yr[rows] = y[rows] @ G.T
+    return Xr, yr
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_sweep_frame_makes_the_residual_independent_of_the_sensor_mount(Est, small):
+    # a run seen from a rotated base sensor gets the same residual, rotated
+    _, Xb, y = small
+    runs = _runs(Xb)
+    rng = np.random.default_rng(4)
+    G = [Rotation.random(random_state=rng).as_matrix() for _ in runs]
+    Xr, yr = _remounted(Xb, y, runs, G)
+    codes = pd.factorize(Xb["run"].astype(str))[0]
+    Gr = np.stack(G)[codes]
+
+    def rotated(r):
+        return np.einsum("nij,nj->ni", Gr, r)
+
+    est = _tiny(Est, clip=None).fit(Xb, y)
+    assert_allclose(est.predict_residual(Xr), rotated(est.predict_residual(Xb)), atol=1e-3)
+    # and training on remounted catheters learns the same model
+    remounted = _tiny(Est, clip=None).fit(Xr, yr)
+    assert_allclose(remounted.predict_residual(Xr), rotated(est.predict_residual(Xb)), atol=1e-3)
+    # in the base frame the network sees the mount, and the residual changes
+    base = _tiny(Est, clip=None, frame="base").fit(Xb, y)
+    moved = np.abs(base.predict_residual(Xr) - rotated(base.predict_residual(Xb)))
+    assert moved.max() > 0.1
 
 
 # ---------------------------------------------------------------------------

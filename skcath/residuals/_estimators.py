@@ -29,8 +29,9 @@ from skorch.utils import to_tensor
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
-from .._validation import check_recordings
+from .._validation import check_recordings, group_positions
 from ..backbones import BACKBONE_COLUMNS
+from ..frames import sweep_frame
 from ..sequences import from_padded, to_padded
 from ._features import (
     Standardizer,
@@ -132,6 +133,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         "sweep_stride": [Interval(Integral, 1, None, closed="left")],
         "use_torque": ["boolean"],
         "use_context": ["boolean"],
+        "frame": [StrOptions({"sweep", "base"})],
         "clip": [Interval(Real, 0, None, closed="neither"), None],
         "validation_fraction": [Interval(Real, 0, 1, closed="neither"), None],
         "n_iter_no_change": [Interval(Integral, 1, None, closed="left")],
@@ -159,6 +161,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         sweep_stride=20,
         use_torque=True,
         use_context=True,
+        frame="sweep",
         clip=25.0,
         pretrained=None,
         validation_fraction=None,
@@ -189,6 +192,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.sweep_stride = sweep_stride
         self.use_torque = use_torque
         self.use_context = use_context
+        self.frame = frame
         self.clip = clip
         self.pretrained = pretrained
         self.validation_fraction = validation_fraction
@@ -300,7 +304,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 "cross_validate or GridSearchCV wrap it in sklearn.frozen.FrozenEstimator, "
                 "because clone() drops the weights of a plain fitted estimator."
             )
-        for key in ("use_torque", "use_context"):
+        for key in ("use_torque", "use_context", "frame"):
             if getattr(source, key) != getattr(self, key):
                 raise ValueError(
                     f"pretrained was fitted with {key}={getattr(source, key)!r} but this "
@@ -309,24 +313,51 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         return source
 
     # ------------------------------------------------------------------ data
+    def _row_rotations(self, F, codes, runs):
+        """Rotation ``R_SB`` of every row's run (``frame="sweep"``), or None (``"base"``)."""
+        if self.frame == "base":
+            return None
+        is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        q = F[list(fmt.MOTOR_COLUMNS)].to_numpy()
+        b = F[list(BACKBONE_COLUMNS)].to_numpy()
+        order, bounds = group_positions(codes[is_sweep], len(runs))
+        sweep_rows = np.flatnonzero(is_sweep)[order]
+        rotations = np.empty((len(runs), 3, 3))
+        for k in range(len(runs)):  # check_recordings ensures every run has a sweep
+            rows = sweep_rows[bounds[k] : bounds[k + 1]]
+            rotations[k] = sweep_frame(q[rows], b[rows], run=runs[k])
+        return rotations[codes]
+
     def _sequences(self, X, y=None):
-        """Normalised padded motion features, sweep context input, and targets."""
-        F, _, _ = feature_frame(X)
+        """Padded motion features, sweep features, and residual targets.
+
+        With ``frame="sweep"`` the nominal tip ``b`` among the features and
+        the residual ``e`` are expressed in each run's sweep frame. Returns the
+        feature frame, the padded motion and sweep sequences, the residual of
+        every row (None without ``y``) and the per-row rotations (or None).
+        """
+        F, codes, runs = feature_frame(X)
         x_names = step_feature_names(self.use_torque)
         s_names = sweep_feature_names(self.use_torque)
+        b = F[list(BACKBONE_COLUMNS)].to_numpy()
+        rotations = self._row_rotations(F, codes, runs)
+        if rotations is not None:
+            F[list(BACKBONE_COLUMNS)] = np.einsum("nij,nj->ni", rotations, b)
         e = None
         if y is not None:
-            e = y - F[list(BACKBONE_COLUMNS)].to_numpy()
+            e = y - b
+            if rotations is not None:
+                e = np.einsum("nij,nj->ni", rotations, e)
         motion = to_padded(F, x_names, y=e, phase=fmt.MOTION)
         sweep = to_padded(F, s_names, phase=fmt.SWEEP)
-        return F, motion, sweep
+        return F, motion, sweep, e, rotations
 
-    def _fit_statistics(self, F, motion, sweep, y):
+    def _fit_statistics(self, F, e):
         x_names = list(step_feature_names(self.use_torque))
         s_names = list(sweep_feature_names(self.use_torque))
         is_motion = (F[fmt.PHASE] == fmt.MOTION).to_numpy()
         is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
-        e = y[is_motion] - F.loc[is_motion, list(BACKBONE_COLUMNS)].to_numpy()
+        e = e[is_motion]
         finite = np.isfinite(e).all(axis=1)
         if not finite.any():
             raise ValueError(
@@ -437,9 +468,9 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             # the first call initialises as fit does, from pretrained if given
             return self.fit(X, y, **fit_params)
         X, y = self._check_X(X, y)
-        F, motion, sweep = self._sequences(X, y)
+        F, motion, sweep, e, _ = self._sequences(X, y)
         if not hasattr(self, "sigma_e_"):
-            self._fit_statistics(F, motion, sweep, y)
+            self._fit_statistics(F, e)
         data, target = self._training_windows(X, motion, sweep)
         self._record_columns(X)
         seed = self._seed()
@@ -474,7 +505,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 f"This {type(self).__name__} instance is not fitted yet; call fit first."
             )
         X, _ = self._check_X(X)
-        F, motion, sweep = self._sequences(X)
+        F, motion, sweep, _, rotations = self._sequences(X)
         if motion.max_length == 0:  # no motion row: nothing to correct
             return np.zeros((len(X), 3))
         data = {"features": self.x_scaler_.transform(motion.values).astype(np.float32)}
@@ -485,11 +516,12 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         # generator, which prediction must leave alone
         with _torch_runtime(self.n_threads, None), torch.random.fork_rng(devices=[]):
             out = self.forward(Dataset(data, None)).numpy().astype(np.float64)
-        r = out * self.sigma_e_
+        r = from_padded(out * self.sigma_e_, motion)
+        if rotations is not None:  # back from the sweep frame to the base frame
+            r = np.einsum("nji,nj->ni", rotations, r)
         if self.clip is not None:
             r = np.clip(r, -self.clip, self.clip)
-        r_rows = from_padded(r, motion)
-        return np.where(np.isnan(r_rows), 0.0, r_rows)
+        return np.where(np.isnan(r), 0.0, r)
 
     def predict(self, X):
         """Tip position ``b + r`` (mm): the backbone's nominal tip plus the residual.
@@ -545,6 +577,15 @@ _COMMON_PARAMS = """
         Include the drive torques in the step features and the sweep features.
     use_context : bool, default=True
         Condition on the sweep context ``z``; without it ``v = x``.
+    frame : {"sweep", "base"}, default="sweep"
+        Frame in which the nominal tip ``b`` (a step feature) and the
+        residual are expressed inside the network. ``"sweep"``: each run's
+        sweep frame (:func:`skcath.frames.sweep_frame`, fitted to the
+        nominal tip on the run's sweep rows), so that what the network
+        learns does not depend on how the base sensor is mounted on a
+        catheter; the predicted residual is rotated back to the base frame
+        before it is clipped and added. ``"base"``: the base frame B
+        throughout, as in the paper.
     clip : float or None, default=25.0
         Bound of the applied residual per coordinate (mm); None disables.
     pretrained : fitted estimator of the same class, FrozenEstimator, or None
@@ -582,7 +623,8 @@ _COMMON_ATTRIBUTES = """
         Means and standard deviations of the step features (training motion
         rows) and of the sweep features (training sweep rows).
     sigma_e_ : ndarray of shape (3,)
-        Standard deviation of the training residual ``e`` per coordinate (mm).
+        Standard deviation of the training residual ``e`` per coordinate (mm)
+        of the frame the network works in (see ``frame``).
     history_ : skorch.History
         Per-epoch training (and validation) loss.
     feature_names_in_ : ndarray of str
