@@ -159,11 +159,17 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
 
     n_models = len(schedule.variants) * len(schedule.seeds)
     pretrained = {}
+    # every method and seed gets its slot now, in a fixed order, because the
+    # tasks finish in whatever order the workers complete them
+    learned = [*schedule.variants]
+    if LOCO_VARIANT in schedule.variants:
+        learned.append(f"{LOCO_VARIANT} (LOCO)")
     predictions = {"PCC": {None: pcc}, "PDL": {None: pdl}}
+    for method in learned:
+        predictions[method] = {seed: np.full((len(X), 3), np.nan) for seed in schedule.seeds}
 
     def store(method, seed, rows, values):
-        target = predictions.setdefault(method, {}).setdefault(seed, np.full((len(X), 3), np.nan))
-        target[rows] = values
+        predictions[method][seed][rows] = values
 
     timings = []
     for key, model, pred, seconds in _run_tasks(
