@@ -31,6 +31,7 @@ from sklearn.pipeline import Pipeline
 
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
+from skcath.frames import FRAMES
 from skcath.metrics import run_rmse_scorer
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
@@ -75,7 +76,7 @@ def main():
     parser.add_argument("--max-epochs", type=int, default=None,
                         help="override the learners' max_epochs (default: their default)")
     parser.add_argument("--n-jobs", type=int, default=2)
-    parser.add_argument("--frame", choices=("sweep", "base"), default=None,
+    parser.add_argument("--frame", choices=FRAMES, default=None,
                         help="the learners' frame parameter (default: their default, sweep)")
     args = parser.parse_args()
 

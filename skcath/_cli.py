@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from .frames import FRAMES
 from ._format import (
     CATHETER,
     MOTION,
@@ -219,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     repro.add_argument(
         "--frame",
-        choices=("sweep", "base"),
+        choices=FRAMES,
         default=None,
         help="frame of the residual learners (their `frame` parameter): each run's sweep frame, "
         "or the base-sensor frame as in the paper (default: the learners' default, sweep)",

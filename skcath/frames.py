@@ -29,7 +29,10 @@ write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
+__all__ = ["FRAMES", "QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
+
+#: Frames a residual learner can work in: each run's sweep frame, or the base frame B.
+FRAMES = ("sweep", "base")
 
 #: Accepted quaternion component orders: scalar first or scalar last.
 QUAT_ORDERS = ("wxyz", "xyzw")

@@ -25,6 +25,9 @@ __all__ = ["run_protocol"]
 #: The learned method whose pretrained models are reported as leave-one-catheter-out.
 LOCO_VARIANT = "PDL+GRU"
 
+#: Name of the leave-one-catheter-out results among the methods.
+LOCO_METHOD = f"{LOCO_VARIANT} (LOCO)"
+
 #: Columns the residual learners need (the recording format plus the backbone output).
 _LEARNER_COLUMNS = (*fmt.REQUIRED_COLUMNS, *BACKBONE_COLUMNS)
 
@@ -163,7 +166,7 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
     # tasks finish in whatever order the workers complete them
     learned = [*schedule.variants]
     if LOCO_VARIANT in schedule.variants:
-        learned.append(f"{LOCO_VARIANT} (LOCO)")
+        learned.append(LOCO_METHOD)
     predictions = {"PCC": {None: pcc}, "PDL": {None: pdl}}
     for method in learned:
         predictions[method] = {seed: np.full((len(X), 3), np.nan) for seed in schedule.seeds}
@@ -177,7 +180,7 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
     ):
         pretrained[key["variant"], key["seed"], key["catheter"]] = model
         if key["variant"] == LOCO_VARIANT:
-            store(f"{LOCO_VARIANT} (LOCO)", key["seed"], key["test"], pred)
+            store(LOCO_METHOD, key["seed"], key["test"], pred)
         timings.append({"stage": "pretrain", "variant": key["variant"], "seed": key["seed"],
                         "catheter": key["catheter"], "seconds": seconds})
 

@@ -17,6 +17,7 @@ from ..metrics import (
     rmse_by_motor_magnitude,
     rmse_over_time,
 )
+from ._protocol import LOCO_METHOD
 
 __all__ = ["compute_tables", "MAIN_METHODS", "COMPARISONS", "TORQUE_CONTEXT"]
 
@@ -40,7 +41,7 @@ COMPARISONS = {
     "torque (without context)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no context)"),
     "context (with torque)": ("PDL+GRU (no context)", "PDL+GRU"),
     "context (without torque)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no torque)"),
-    "catheter held out -> setting held out": ("PDL+GRU (LOCO)", "PDL+GRU"),
+    "catheter held out -> setting held out": (LOCO_METHOD, "PDL+GRU"),
 }
 
 #: Grid of the error CDF (mm).
@@ -186,9 +187,9 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
             learners.loc[column] = sub[column].reindex(learners.columns)
         tables["residual_learners"] = learners
 
-    if "PDL+GRU (LOCO)" in wide:
-        loco = _by_catheter(run_rmse, ("PDL", "PDL+GRU", "PDL+GRU (LOCO)"), catheters)
-        seeds = run_rmse_by_seed[run_rmse_by_seed["method"] == "PDL+GRU (LOCO)"]
+    if LOCO_METHOD in wide:
+        loco = _by_catheter(run_rmse, ("PDL", "PDL+GRU", LOCO_METHOD), catheters)
+        seeds = run_rmse_by_seed[run_rmse_by_seed["method"] == LOCO_METHOD]
         below = seeds.groupby(fmt.RUN)["rmse_mm"].mean() < 4.0
         below = below.to_frame("below").join(info)
         frac = below.groupby(fmt.CATHETER, sort=False)["below"].mean().reindex(catheters)

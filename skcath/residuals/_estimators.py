@@ -31,7 +31,7 @@ from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._validation import check_recordings, group_positions
 from ..backbones import BACKBONE_COLUMNS
-from ..frames import sweep_frame
+from ..frames import FRAMES, sweep_frame
 from ..sequences import from_padded, to_padded
 from ._features import (
     Standardizer,
@@ -133,7 +133,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         "sweep_stride": [Interval(Integral, 1, None, closed="left")],
         "use_torque": ["boolean"],
         "use_context": ["boolean"],
-        "frame": [StrOptions({"sweep", "base"})],
+        "frame": [StrOptions(set(FRAMES))],
         "clip": [Interval(Real, 0, None, closed="neither"), None],
         "validation_fraction": [Interval(Real, 0, 1, closed="neither"), None],
         "n_iter_no_change": [Interval(Integral, 1, None, closed="left")],
