@@ -69,6 +69,7 @@ sphinx_gallery_conf = {
             "../examples/backbones",
             "../examples/residuals",
             "../examples/model_selection",
+            "../examples/online",
         ]
     ),
     "within_subsection_order": "FileNameSortKey",

@@ -1,10 +1,18 @@
 """What every estimator over recordings shares: the run-RMSE score and the input tags."""
 
+import warnings
+
 import numpy as np
 
 from ._validation import check_target
 
 __all__ = ["RecordingsMixin"]
+
+
+def _current_version():
+    from . import __version__
+
+    return __version__
 
 
 class RecordingsMixin:
@@ -13,6 +21,10 @@ class RecordingsMixin:
     ``score`` is the negated mean per-run RMSE over motion rows, and the tags
     declare long-format input (strings, categories and NaN allowed) and a
     3-column target. Subclasses set ``_target_required``.
+
+    Pickling stores the skcath version in the state (``_skcath_version``);
+    unpickling under another version warns with
+    :class:`skcath.persist.InconsistentVersionWarning`.
     """
 
     _target_required = False
@@ -44,6 +56,35 @@ class RecordingsMixin:
             raise ValueError("sample_weight is not supported: the metric weights runs equally.")
         y = check_target(y, len(X))
         return -mean_per_run_rmse(y, self.predict(X), X)
+
+    def __getstate__(self):
+        # the next class in the MRO (BaseEstimator, or skorch's NeuralNet that
+        # serializes the torch modules) builds the state
+        state = super().__getstate__()
+        if state is None or not isinstance(state, dict):  # pragma: no cover - no __dict__
+            return state
+        return {**state, "_skcath_version": _current_version()}
+
+    def __setstate__(self, state):
+        if isinstance(state, dict) and "_skcath_version" in state:
+            state = dict(state)
+            saved = state.pop("_skcath_version")
+            if saved != _current_version():
+                from .persist import InconsistentVersionWarning
+
+                warnings.warn(
+                    InconsistentVersionWarning(
+                        estimator_name=type(self).__name__,
+                        original_version=saved,
+                        current_version=_current_version(),
+                    ),
+                    stacklevel=2,
+                )
+        parent = getattr(super(), "__setstate__", None)
+        if parent is not None:
+            parent(state)
+        else:  # pragma: no cover - BaseEstimator and skorch NeuralNet both define it
+            self.__dict__.update(state)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()

@@ -13,11 +13,16 @@ reproduce
     Run the paper's evaluation protocol (:mod:`skcath.protocol`) on the
     benchmark or on recordings from a file, print its tables and write them
     as CSV with the figures as PNG.
+calibration-budget
+    Score the backbones and PDL+GRU on sweeps reduced to fewer rays or fewer
+    samples (:func:`skcath.protocol.run_calibration_budget`), print the table
+    and write it as CSV with the figure as PNG.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 import time
@@ -52,6 +57,9 @@ _AXES = ("x", "y", "z")
 
 #: The straight reference setting of the built-in benchmark, never evaluated.
 STRAIGHT_SETTING = "S00"
+
+#: joblib backends ``reproduce`` trains the models with.
+BACKENDS = ("loky", "dask", "ray")
 
 
 def _positive_int(text: str) -> int:
@@ -193,7 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=-1,
         metavar="N",
-        help="models trained in parallel, one CPU core each; -1 uses all cores (default: %(default)s)",
+        help="models trained in parallel, one CPU core each; -1 uses all cores (with --backend "
+        "dask: the local cluster's worker processes, or, with --scheduler, all worker threads) "
+        "(default: %(default)s)",
     )
     repro.add_argument(
         "--data",
@@ -233,6 +243,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="settings used for training but never evaluated (default: the straight setting "
         f"{STRAIGHT_SETTING} of the built-in benchmark, none with --data)",
     )
+    repro.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="loky",
+        help="where the models are trained: local worker processes (loky), or the workers of "
+        "a dask.distributed cluster (dask) or a Ray cluster (ray); see docs/cluster.rst "
+        "(default: %(default)s)",
+    )
+    repro.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="with --backend dask: address of a running dask scheduler, e.g. tcp://host:8786; "
+        "with --backend ray: address of a running Ray cluster, e.g. auto or ray://host:10001 "
+        "(default: start a local cluster of --n-jobs single-threaded worker processes)",
+    )
     _add_mechanism_argument(repro)
     _add_data_home_argument(repro)
     repro.add_argument(
@@ -241,6 +267,104 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the CSV tables only (the figures need matplotlib)",
     )
     repro.set_defaults(handler=_run_reproduce, command_parser=repro)
+
+    budget = commands.add_parser(
+        "calibration-budget",
+        help="tip error against the size of the calibration sweep (fewer rays, fewer samples)",
+        description=(
+            "Reduce every evaluated run's calibration sweep to fewer rays (every sample) or to "
+            "every s-th sample (all rays) with skcath.sweep.reduce_sweep, calibrate the PCC and PDL "
+            "backbones on the reduced sweep, apply a PDL+GRU trained on full sweeps (pretrained on "
+            "the other catheters, fine-tuned with shaft settings held out, as in reproduce), and "
+            "score them all on the unchanged motion rows. Prints the table of mean per-run RMSE "
+            "and writes it as CSV, with the figure as PNG, to the output folder."
+        ),
+    )
+    budget.add_argument(
+        "--rays",
+        type=_positive_int,
+        nargs="+",
+        default=[8, 6, 4, 3],
+        metavar="N",
+        help="numbers of rays kept, at least 3 (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--strides",
+        type=_positive_int,
+        nargs="+",
+        default=[5, 20, 50],
+        metavar="S",
+        help="keep every S-th sweep sample, with all rays (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--n-rays-swept",
+        type=_positive_int,
+        default=8,
+        metavar="N",
+        help="rays of the recorded sweeps, evenly spaced (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--schedule",
+        choices=("quick", "full"),
+        default="quick",
+        help="training schedule of PDL+GRU, as in reproduce (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--seeds",
+        type=_seed,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="seeds of PDL+GRU (default: those of the schedule)",
+    )
+    budget.add_argument(
+        "--backbones-only",
+        action="store_true",
+        help="score PCC and PDL only, without training PDL+GRU (about a third of the time)",
+    )
+    budget.add_argument(
+        "--catheters",
+        nargs="+",
+        default=None,
+        metavar="ID",
+        help="catheters evaluated (default: all); the others still serve for pretraining",
+    )
+    budget.add_argument(
+        "--out",
+        default="skcath_results",
+        metavar="DIR",
+        help="output folder for the CSV tables and the PNG figure (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--n-jobs",
+        type=int,
+        default=-1,
+        metavar="N",
+        help="runs calibrated and models trained in parallel; -1 uses all cores (default: %(default)s)",
+    )
+    budget.add_argument(
+        "--data",
+        default=None,
+        metavar="PATH",
+        help="recordings in the long format (CSV or Parquet, see docs/data_format.rst) instead of "
+        "the built-in benchmark",
+    )
+    budget.add_argument(
+        "--exclude-settings",
+        nargs="*",
+        default=None,
+        metavar="SETTING",
+        help="settings never evaluated (default: the straight setting "
+        f"{STRAIGHT_SETTING} of the built-in benchmark, none with --data)",
+    )
+    _add_mechanism_argument(budget)
+    _add_data_home_argument(budget)
+    budget.add_argument(
+        "--no-figures",
+        action="store_true",
+        help="write the CSV tables only (the figure needs matplotlib)",
+    )
+    budget.set_defaults(handler=_run_calibration_budget, command_parser=budget)
     return parser
 
 
@@ -404,6 +528,22 @@ def _run_benchmark(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
     return 0
 
 
+def _excluded_settings(args, parser, figures_need):
+    """Settings never evaluated (the benchmark's straight one by default), after
+    checking that matplotlib is installed when figures are to be drawn.
+
+    ``figures_need`` starts the error message, e.g. ``"the figures need"``.
+    """
+    if not args.no_figures:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            parser.error(f'{figures_need} matplotlib: pip install "skcath[plot]", or pass --no-figures')
+    if args.exclude_settings is not None:
+        return args.exclude_settings
+    return () if args.data is not None else (STRAIGHT_SETTING,)
+
+
 def _load_reproduce_data(args, parser):
     """Recordings and targets for ``reproduce``: a file, or the built-in benchmark."""
     if args.data is not None:
@@ -420,6 +560,70 @@ def _load_reproduce_data(args, parser):
     except (OSError, ValueError) as exc:
         parser.error(str(exc))
     return bunch.X, bunch.y
+
+
+@contextlib.contextmanager
+def _joblib_backend(args, parser):
+    """The joblib backend of ``reproduce``: local processes, a dask or a Ray cluster.
+
+    With ``--backend dask``, connects to ``--scheduler`` or starts a local
+    cluster of ``--n-jobs`` worker processes of one thread each (each model
+    trains with one torch thread), and closes what it opened on exit.
+    ``--backend ray`` does the same with Ray.
+    """
+    if args.backend == "ray":
+        with _ray_backend(args, parser):
+            yield
+        return
+    if args.backend != "dask":
+        yield
+        return
+    import joblib
+    from distributed import Client, LocalCluster
+
+    with contextlib.ExitStack() as stack:
+        if args.scheduler is not None:
+            try:
+                client = stack.enter_context(Client(args.scheduler, timeout="20s"))
+            except OSError as exc:
+                parser.error(f"argument --scheduler: cannot connect to {args.scheduler!r}: {exc}")
+        else:
+            n_workers = joblib.effective_n_jobs(args.n_jobs)  # -1: all cores
+            cluster = stack.enter_context(
+                LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                             dashboard_address=None)
+            )
+            client = stack.enter_context(Client(cluster))
+        n_threads = sum(client.nthreads().values())
+        print(f"dask cluster: {client.scheduler.address}, {n_threads} worker threads",
+              file=sys.stderr, flush=True)
+        stack.enter_context(joblib.parallel_config(backend="dask"))
+        yield
+
+
+@contextlib.contextmanager
+def _ray_backend(args, parser):
+    """Connect to the Ray cluster at ``--scheduler``, or start a local one of ``--n-jobs`` CPUs."""
+    import joblib
+    import ray
+    from ray.util.joblib import register_ray
+
+    register_ray()
+    if args.scheduler is not None:
+        try:
+            ray.init(address=args.scheduler, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            parser.error(f"argument --scheduler: cannot connect to {args.scheduler!r}: {exc}")
+    else:
+        ray.init(num_cpus=joblib.effective_n_jobs(args.n_jobs), include_dashboard=False,
+                 log_to_driver=False)
+    try:
+        n_cpus = int(ray.cluster_resources().get("CPU", 0))
+        print(f"ray cluster: {n_cpus} CPUs", file=sys.stderr, flush=True)
+        with joblib.parallel_config(backend="ray"):
+            yield
+    finally:
+        ray.shutdown()
 
 
 def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
@@ -441,26 +645,66 @@ def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
         schedule = dataclasses.replace(schedule, variants=tuple(dict.fromkeys(args.variants)))
     if args.frame is not None:
         schedule = dataclasses.replace(schedule, model_params={**schedule.model_params, "frame": args.frame})
-    exclude = args.exclude_settings
-    if exclude is None:
-        exclude = () if args.data is not None else (STRAIGHT_SETTING,)
-    if not args.no_figures:
+    exclude = _excluded_settings(args, parser, "the figures need")
+    if args.scheduler is not None and args.backend == "loky":
+        parser.error("argument --scheduler: only with --backend dask or --backend ray")
+    if args.backend == "dask":
         try:
-            import matplotlib  # noqa: F401
+            import distributed  # noqa: F401
         except ImportError:
-            parser.error('the figures need matplotlib: pip install "skcath[plot]", or pass --no-figures')
+            parser.error('argument --backend: dask needs dask.distributed: pip install "skcath[dask]"')
+    if args.backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            parser.error('argument --backend: ray needs Ray: pip install "skcath[ray]"')
     X, y = _load_reproduce_data(args, parser)
-    try:
-        result = protocol.run_protocol(
-            X, y, schedule=schedule, exclude_settings=exclude, n_jobs=args.n_jobs, verbose=True,
-        )
-    except ValueError as exc:
-        parser.error(str(exc))
+    with _joblib_backend(args, parser):
+        try:
+            result = protocol.run_protocol(
+                X, y, schedule=schedule, exclude_settings=exclude, n_jobs=args.n_jobs, verbose=True,
+            )
+        except ValueError as exc:
+            parser.error(str(exc))
     tables = protocol.compute_tables(result)
     print(protocol.format_report(tables, result), flush=True)
     paths = protocol.write_results(tables, args.out, figures=not args.no_figures)
     result.timings.to_csv(f"{args.out}/timings.csv", index=False, float_format="%.3g")
     print(f"\nwrote {len(paths) + 1} files to {args.out}", flush=True)
+    return 0
+
+
+def _run_calibration_budget(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    import dataclasses
+
+    from . import protocol
+
+    if args.n_jobs == 0:
+        parser.error("argument --n-jobs: expected a positive number of jobs or -1 (all cores), got 0")
+    if args.n_rays_swept < 3:
+        parser.error(f"argument --n-rays-swept: expected at least 3 rays, got {args.n_rays_swept}")
+    bad = [n for n in args.rays if not 3 <= n <= args.n_rays_swept]
+    if bad:
+        parser.error(
+            f"argument --rays: expected numbers of rays from 3 to --n-rays-swept={args.n_rays_swept}, "
+            f"got {bad} (the backbones need at least 3 rays)"
+        )
+    schedule = protocol.QUICK if args.schedule == "quick" else protocol.FULL
+    if args.seeds is not None:
+        schedule = dataclasses.replace(schedule, seeds=tuple(dict.fromkeys(args.seeds)))
+    exclude = _excluded_settings(args, parser, "the figure needs")
+    X, y = _load_reproduce_data(args, parser)
+    try:
+        result = protocol.run_calibration_budget(
+            X, y, rays=args.rays, strides=args.strides, n_rays_swept=args.n_rays_swept,
+            learned=not args.backbones_only, schedule=schedule, catheters=args.catheters,
+            exclude_settings=exclude, n_jobs=args.n_jobs, verbose=True,
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
+    print(protocol.format_budget_report(result), flush=True)
+    paths = protocol.write_budget_results(result, args.out, figure=not args.no_figures)
+    print(f"\nwrote {len(paths)} files to {args.out}", flush=True)
     return 0
 
 

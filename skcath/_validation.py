@@ -42,6 +42,7 @@ from ._format import (
 
 __all__ = [
     "FINITE_COLUMNS",
+    "MAX_ABS_VALUE",
     "NUMERIC_COLUMNS",
     "check_recordings",
     "check_target",
@@ -56,6 +57,12 @@ FINITE_COLUMNS = (TIME, *MOTOR_COLUMNS, *TORQUE_COLUMNS)
 #: All numeric channels of the format. The reference tip columns (mm) may be
 #: NaN (absent on motion rows, tracker dropouts on sweep rows) but never +-inf.
 NUMERIC_COLUMNS = (*FINITE_COLUMNS, *REFERENCE_COLUMNS)
+
+#: Largest magnitude accepted in any numeric channel. Larger finite values are
+#: logger fill values (1e30, 3.4e38, ...) or a unit far off, never a physical
+#: angle (degrees), torque, time (s) or position (mm); they would also overflow
+#: the float32 arithmetic of the residual networks.
+MAX_ABS_VALUE = 1e12
 
 _DOCS = "docs/data_format.rst"
 # How many offending values or runs an error message lists before "... and N more".
@@ -217,6 +224,21 @@ def _check_finite(
         f"Column {column!r} contains {int(bad.sum())} non-finite value(s) "
         f"({allowed}); first {kind} at "
         f"{_where(X, first)}."
+    )
+
+
+def _check_magnitude(X: pd.DataFrame, column: str, values: np.ndarray) -> None:
+    """Raise if finite ``values`` exceed :data:`MAX_ABS_VALUE` in magnitude."""
+    with np.errstate(invalid="ignore"):
+        bad = np.abs(values) > MAX_ABS_VALUE
+    if not bad.any():
+        return
+    first = int(np.flatnonzero(bad)[0])
+    raise ValueError(
+        f"Column {column!r} contains {int(bad.sum())} value(s) larger than "
+        f"{MAX_ABS_VALUE:g} in magnitude; first {_plain(values[first])!r} at "
+        f"{_where(X, first)}. Expected physical values in the units of {_DOCS} "
+        "(degrees, s, mm); is it a logger fill value or a unit mix-up?"
     )
 
 
@@ -479,6 +501,12 @@ def check_target(y, n_rows: int) -> np.ndarray:
     -------
     y : ndarray of shape (n_rows, 3), dtype float64
         A new array; NaN rows are kept (to be masked downstream).
+
+    Raises
+    ------
+    ValueError
+        If ``y`` is not of shape ``(n_rows, 3)``, is not numeric, contains
+        +-inf, or has a value larger than :data:`MAX_ABS_VALUE` in magnitude.
     """
     if isinstance(y, pd.Series):
         raise ValueError(
@@ -525,6 +553,16 @@ def check_target(y, n_rows: int) -> np.ndarray:
             f"y contains {int(inf.sum())} infinite value(s); first in column "
             f"{TARGET_NAMES[col]!r} at row position {row}. NaN marks a tracker "
             "dropout and is allowed, +-inf is not."
+        )
+    with np.errstate(invalid="ignore"):
+        huge = np.abs(values) > MAX_ABS_VALUE
+    if huge.any():
+        row, col = (int(i) for i in np.argwhere(huge)[0])
+        raise ValueError(
+            f"y contains {int(huge.sum())} value(s) larger than {MAX_ABS_VALUE:g} "
+            f"in magnitude; first {_plain(values[row, col])!r} in column "
+            f"{TARGET_NAMES[col]!r} at row position {row}. Expected tip positions "
+            "in mm; is it a logger fill value or a unit mix-up?"
         )
     return values
 
@@ -608,7 +646,8 @@ def check_recordings(
         If ``X`` is not a pandas DataFrame.
     ValueError
         On any violation of the format; the message names the column and,
-        where it applies, the run id and row label.
+        where it applies, the run id and row label. This includes finite
+        values larger than :data:`MAX_ABS_VALUE` (``1e12``) in magnitude.
 
     Notes
     -----
@@ -632,6 +671,7 @@ def check_recordings(
         if column in required:
             values = _column_as_float(X, column)
             _check_finite(X, column, values, allow_nan=column not in FINITE_COLUMNS)
+            _check_magnitude(X, column, values)
             converted[column] = values
 
     order = None

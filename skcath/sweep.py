@@ -9,7 +9,10 @@ belongs to which ray. :func:`find_rays` recovers this from the motor angles
 only (no simulator labels), tolerating a non-zero neutral, encoder noise, an
 arbitrary first direction, slightly uneven directions and any ray order;
 :func:`check_sweep_references` checks that the EM reference tip positions of a
-sweep are usable for the calibration.
+sweep are usable for the calibration. :func:`reduce_sweep` keeps only some rays
+or samples of every run's sweep, to study a smaller calibration budget; the
+rays of such a sweep are found by passing the spacing of the full layout,
+``ray_spacing_deg``, to :func:`find_rays` (and to the backbones).
 
 Algorithm of :func:`find_rays`
 ------------------------------
@@ -39,10 +42,12 @@ the only Python loop is over excursions, so a 4300-sample sweep takes about
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Integral
 
 import numpy as np
+import pandas as pd
 
-__all__ = ["SweepRays", "check_sweep_references", "find_rays"]
+__all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
 
 _TWO_PI = 2.0 * np.pi
 # Fraction of the samples, closest to the running centre, used for the robust
@@ -257,6 +262,12 @@ def _check_motion(q, rho_max, run, n_rays, min_amplitude_deg) -> None:
             f"The motors do not move during the sweep{_of_run(run)}: the largest "
             f"motor-input magnitude |q - q_neutral| is {rho_max:.3g} deg; expected "
             f"rays of at least min_amplitude_deg={min_amplitude_deg:g} deg."
+            + (
+                " Motor angles must be in degrees; a largest magnitude of at most "
+                "2*pi suggests radians (convert q1, q2 with numpy.rad2deg)."
+                if 0.0 < rho_max <= _TWO_PI
+                else ""
+            )
         )
     if n_rays < 3:  # two opposite rays may legitimately use a single motor
         return
@@ -352,6 +363,7 @@ def find_rays(
     neutral_fraction: float = 0.03,
     min_amplitude_deg: float = 5.0,
     min_samples: int | None = None,
+    ray_spacing_deg: float | None = None,
 ) -> SweepRays:
     """Find the rays of a calibration sweep from its motor angles.
 
@@ -375,6 +387,15 @@ def find_rays(
         to define a ray.
     min_samples : int or None, default None
         Fewest sweep samples accepted; None means ``10 * n_rays``.
+    ray_spacing_deg : float or None, default None
+        Nominal angle between neighbouring directions of the sweep layout
+        (degrees). None means ``360 / n_rays``: the rays are evenly spaced
+        around the circle. Give the spacing of the full layout for a sweep
+        that keeps only some of its rays (:func:`reduce_sweep`), e.g. 45 for
+        4 of 8 rays; it must be at most ``360 / n_rays``. Candidates within
+        half the spacing are merged, and the largest allowed gap between
+        neighbouring directions is ``360 - (n_rays - 1) * spacing`` plus half
+        a spacing, which is ``1.5 * 360 / n_rays`` for the default.
 
     Returns
     -------
@@ -387,13 +408,15 @@ def find_rays(
     ValueError
         Naming the run, when ``q`` is not of shape (n, 2) or not finite, when
         the sweep has fewer than ``min_samples`` samples, when the motors do
-        not move (largest ``rho`` below ``min_amplitude_deg``), when one motor
+        not move (largest ``rho`` below ``min_amplitude_deg``; when it is at
+        most ``2 * pi`` the message points to angles in radians), when one motor
         column (``q1`` or ``q2``) is stuck while the other moves, when fewer or
         more distinct rays than ``n_rays`` are found, when two neighbouring
         ray directions are more than ``1.5 * 360 / n_rays`` degrees apart (a
-        ray is missing), or when an excursion changes direction far from
-        neutral by more than ``90 / n_rays`` degrees (a move along the rim
-        between rays instead of out and back).
+        ray is missing; see ``ray_spacing_deg`` for reduced sweeps), or when
+        an excursion changes direction far from neutral by more than a
+        quarter of the spacing, ``90 / n_rays`` degrees by default (a move
+        along the rim between rays instead of out and back).
 
     Notes
     -----
@@ -419,6 +442,21 @@ def find_rays(
         )
     if not min_amplitude_deg > 0.0:
         raise ValueError(f"min_amplitude_deg must be positive; got {min_amplitude_deg!r}.")
+    if ray_spacing_deg is None:
+        spacing = _TWO_PI / n_rays
+    else:
+        try:
+            spacing_deg = float(ray_spacing_deg)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"ray_spacing_deg must be a number of degrees or None; got {ray_spacing_deg!r}."
+            ) from None
+        if not 0.0 < spacing_deg <= 360.0 / n_rays:
+            raise ValueError(
+                f"ray_spacing_deg must be in (0, 360 / n_rays] = (0, {360.0 / n_rays:g}] "
+                f"degrees for n_rays={n_rays} rays; got {ray_spacing_deg!r}."
+            )
+        spacing = np.deg2rad(spacing_deg)
     if min_samples is None:
         min_samples = 10 * n_rays
     q = _check_motor_angles(q, run, n_rays, int(min_samples))
@@ -451,12 +489,12 @@ def find_rays(
     with np.errstate(invalid="ignore", divide="ignore"):
         ux = np.where(neutral, 0.0, d[:, 0] / rho)
         uy = np.where(neutral, 0.0, d[:, 1] / rho)
-    tol = np.pi / n_rays  # half the nominal spacing
+    tol = 0.5 * spacing  # half the nominal spacing
     significant = max(min_amplitude_deg, _SIGNIFICANT_FRACTION * float(rho.max()))
     starts, stops, is_ray, csum, ssum, spread = _excursion_pieces(
         rho, ux, uy, neutral, significant, tol
     )
-    max_spread = _MAX_SPREAD_SPACINGS * _TWO_PI / n_rays
+    max_spread = _MAX_SPREAD_SPACINGS * spacing
     if spread.max(initial=0.0) > max_spread:
         i = int(np.argmax(spread))
         raise ValueError(
@@ -481,16 +519,24 @@ def find_rays(
     rank = np.empty(n_found, dtype=np.intp)
     rank[order] = np.arange(n_found)
 
+    layout = (
+        f"spaced {360.0 / n_rays:g} deg apart"
+        if ray_spacing_deg is None
+        else f"from a layout spaced {np.rad2deg(spacing):g} deg apart"
+    )
     if n_found != n_rays:
         what = "Rays missing" if n_found < n_rays else "Too many rays"
         raise ValueError(
             f"{what} in the sweep{_of_run(run)}: found {n_found} distinct "
             f"ray(s) at directions {_fmt_deg(directions)} deg (from "
             f"{cand.size} excursion(s) away from neutral); expected "
-            f"n_rays={n_rays} rays spaced {360.0 / n_rays:g} deg apart."
+            f"n_rays={n_rays} rays {layout}."
         )
     gaps = np.diff(directions, append=directions[0] + _TWO_PI)
-    max_gap = _MAX_GAP_SPACINGS * _TWO_PI / n_rays
+    if ray_spacing_deg is None:
+        max_gap = _MAX_GAP_SPACINGS * _TWO_PI / n_rays
+    else:  # the rays left when the others of the layout are side by side, and slack
+        max_gap = _TWO_PI - (n_rays - 1) * spacing + (_MAX_GAP_SPACINGS - 1.0) * spacing
     if gaps.max() > max_gap:
         i = int(np.argmax(gaps))
         a = np.rad2deg(directions[i]) % 360.0
@@ -499,7 +545,7 @@ def find_rays(
             f"Rays missing in the sweep{_of_run(run)}: a gap of "
             f"{np.rad2deg(gaps[i]):.1f} deg between the rays at {a:.1f} and "
             f"{b:.1f} deg (directions found: {_fmt_deg(directions)} deg); expected "
-            f"{n_rays} rays spaced {360.0 / n_rays:g} deg apart, with no gap above "
+            f"{n_rays} rays {layout}, with no gap above "
             f"{np.rad2deg(max_gap):.1f} deg."
         )
 
@@ -561,7 +607,7 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
         finite reference (the message names the ray direction in degrees),
         when no neutral sample has a finite reference, or when the references
         do not move (peak-to-peak below 1 mm in every coordinate over the
-        sweep).
+        sweep; the message points to positions in metres).
 
     Notes
     -----
@@ -624,5 +670,184 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
             f"sweep: their range is {np.array2string(span, precision=3)} mm in "
             f"(ref_x, ref_y, ref_z); expected at least "
             f"{_MIN_REFERENCE_RANGE_MM:g} mm while the motors sweep "
-            f"{rays.amplitude:.1f} deg. Is the EM tip sensor attached and read?"
+            f"{rays.amplitude:.1f} deg. Is the EM tip sensor attached and read? "
+            "Reference positions must be in mm; if they are in metres, multiply "
+            "them by 1000 (read_recording: scale={'ref_x': 1000.0, 'ref_y': "
+            "1000.0, 'ref_z': 1000.0})."
         )
+
+
+# ---------------------------------------------------------------------------
+# reduce_sweep
+# ---------------------------------------------------------------------------
+def _kept_rays(directions: np.ndarray, n_rays: int) -> np.ndarray:
+    """Indices of the ``n_rays`` rays kept out of ``directions`` (radians, sorted).
+
+    The reference ray is the one closest to ``psi = 0`` (the positive ``q1``
+    direction). With ``n_rays >= 3`` the targets are the reference direction
+    plus multiples of ``360 / n_rays`` degrees; with ``n_rays == 2`` they are
+    the reference direction and the one 90 degrees on, so that both motors
+    move. Each target takes the nearest ray not taken yet, in target order.
+    """
+    first = directions[np.argmin(np.abs(_wrap(directions)))]
+    step = np.pi / 2.0 if n_rays == 2 else _TWO_PI / n_rays
+    free = np.ones(directions.size, dtype=bool)
+    kept = []
+    for j in range(n_rays):
+        dist = np.abs(_wrap(directions - (first + j * step)))
+        dist[~free] = np.inf
+        k = int(np.argmin(dist))
+        free[k] = False
+        kept.append(k)
+    return np.sort(np.asarray(kept, dtype=np.intp))
+
+
+def _ray_blocks(rays: SweepRays, q: np.ndarray) -> np.ndarray:
+    """Ray block of every sweep sample: the ray whose excursion it follows, or -1.
+
+    A block runs from the first sample of a ray's excursion (where it leaves
+    neutral) to the sample before the next ray's excursion, so it holds the
+    outward move, the dwell at the ray end, the return and the neutral dwell
+    that follows. Samples before the first excursion (the neutral start) get
+    -1. Only the far part of an excursion (``rho`` above half its ray's
+    amplitude) decides its ray, so that flicker around the neutral threshold
+    does not start a block.
+    """
+    labels = rays.labels
+    on_ray = labels >= 0
+    rho, _ = rays.polar(q)
+    far = on_ray & (rho > _FAR_FRACTION * rays.amplitudes[np.where(on_ray, labels, 0)])
+    marker = np.where(far, labels, -1)
+    starts, stops = _stretches(~rays.neutral)
+    for a, b in zip(starts.tolist(), stops.tolist()):
+        first = np.flatnonzero(far[a:b])
+        if first.size:  # the excursion starts its ray's block where it leaves neutral
+            marker[a] = labels[a + first[0]]
+    last = np.maximum.accumulate(np.where(marker >= 0, np.arange(labels.size), -1))
+    return np.where(last >= 0, marker[np.maximum(last, 0)], -1)
+
+
+def reduce_sweep(X, y=None, *, n_rays=None, stride=1, n_rays_swept=8):
+    """Reduce the calibration sweep of every run to fewer rays and fewer samples.
+
+    The cost of a calibration is the time the sweep takes. This function
+    emulates a smaller calibration budget on recordings made with the full
+    sweep: in each run, the sweep keeps only the samples of some of its rays
+    and, optionally, every ``stride``-th sample; the motion rows are left
+    untouched, so errors on them compare directly with those of the full
+    sweep.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format (``docs/data_format.rst``). Every run
+        starts with a sweep of ``n_rays_swept`` rays. Never modified.
+    y : array-like of shape (n_samples, 3), optional
+        Tip positions (mm) aligned with the rows of ``X``; when given, the
+        rows kept are returned too.
+    n_rays : int or None, default None
+        Rays kept per run, from 2 to ``n_rays_swept``; None keeps them all.
+        The kept rays are spread as evenly as the swept layout allows: the
+        ray closest to the positive ``q1`` direction (``psi = 0``) is kept,
+        and the others are those nearest to ``360 / n_rays`` degree steps from
+        it (for 4 of 8 rays every other ray; for 6 of 8, two opposite rays
+        dropped; for 3 of 8, rays at about 0, 135 and 225 degrees). Two rays
+        are a special case: the ray at ``psi = 0`` and the one 90 degrees on
+        (one per motor), since two opposite rays move the motors along a
+        single line and leave the effect of the other motor direction
+        unobserved. A ray is kept with everything from where it leaves
+        neutral to where the next ray leaves neutral, so the neutral dwell
+        after a dropped ray goes with it (the hysteresis offset it carries
+        belongs to that ray).
+    stride : int, default 1
+        Keep every ``stride``-th sample of the sweep (counted from its first
+        sample, which is kept), as if the sweep had been recorded at
+        ``1 / stride`` of the sampling rate.
+    n_rays_swept : int, default 8
+        Number of rays of the recorded sweeps, evenly spaced by
+        ``360 / n_rays_swept`` degrees; the rays are found with
+        :func:`find_rays` from the motor angles.
+
+    Returns
+    -------
+    X_reduced : pandas.DataFrame
+        A copy of the rows of ``X`` that are kept, with their index labels,
+        columns and dtypes; the ``t`` values are the original ones, so the
+        reduced sweep has gaps in time where rays were dropped.
+    y_reduced : ndarray or pandas object of shape (n_kept, 3)
+        Only if ``y`` is given: its rows kept, of the same type as ``y``.
+
+    Raises
+    ------
+    ValueError
+        When ``X`` or ``y`` do not follow the recording format, when
+        ``n_rays`` is not an integer from 2 to ``n_rays_swept``, when
+        ``stride`` is not a positive integer, or, when rays are dropped,
+        when the ``n_rays_swept`` rays of a run's sweep cannot be found (the
+        message of :func:`find_rays` names the run).
+
+    See Also
+    --------
+    find_rays : the rays of a sweep.
+    skcath.backbones.PDLBackbone : calibrate on the reduced sweep with
+        ``n_rays=n_rays`` and ``ray_spacing_deg=360 / n_rays_swept``.
+
+    Notes
+    -----
+    The learned residuals also read the sweep: their context encoder takes
+    the sweep samples and their sweep frame
+    (:func:`skcath.frames.sweep_frame`) is fitted on them. Two rays are
+    enough for neither the backbones (which need at least 3) nor the sweep
+    frame, whose quadratic fit is singular when the sweep lies on two lines
+    through neutral.
+
+    Examples
+    --------
+    >>> from skcath.datasets import make_benchmark
+    >>> from skcath.sweep import reduce_sweep
+    >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
+    >>> X4, y4 = reduce_sweep(data.X, data.y, n_rays=4, stride=2)  # doctest: +SKIP
+    """
+    from . import _format as fmt
+    from ._validation import check_recordings, check_target, run_codes, run_positions
+
+    if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 2:
+        raise ValueError(f"n_rays_swept must be an integer of at least 2; got {n_rays_swept!r}.")
+    n_rays_swept = int(n_rays_swept)
+    if n_rays is not None and (
+        isinstance(n_rays, bool)
+        or not isinstance(n_rays, Integral)
+        or not 2 <= n_rays <= n_rays_swept
+    ):
+        raise ValueError(
+            f"n_rays must be None or an integer from 2 to n_rays_swept={n_rays_swept} (the rays "
+            f"of the recorded sweep); got {n_rays!r}."
+        )
+    if isinstance(stride, bool) or not isinstance(stride, Integral) or stride < 1:
+        raise ValueError(f"stride must be a positive integer (keep every stride-th sweep sample); "
+                         f"got {stride!r}.")
+    checked, _ = check_recordings(X)
+    if y is not None:
+        check_target(y, len(X))
+    n_keep = n_rays_swept if n_rays is None else int(n_rays)
+
+    sweep = (checked[fmt.PHASE] == fmt.SWEEP).to_numpy()
+    q = checked[list(fmt.MOTOR_COLUMNS)].to_numpy()
+    keep = np.ones(len(checked), dtype=bool)
+    _, runs = run_codes(checked)
+    for run, pos in zip(runs, run_positions(checked, rows=sweep)):
+        drop = np.arange(pos.size) % stride != 0
+        if n_keep < n_rays_swept:
+            rays = find_rays(q[pos], n_rays=n_rays_swept, run=run)
+            blocks = _ray_blocks(rays, q[pos])
+            kept = _kept_rays(rays.directions, n_keep)
+            drop |= (blocks >= 0) & ~np.isin(blocks, kept)
+        keep[pos[drop]] = False
+
+    rows = np.flatnonzero(keep)
+    X_reduced = X.iloc[rows].copy()
+    if y is None:
+        return X_reduced
+    if isinstance(y, (pd.DataFrame, pd.Series)):
+        return X_reduced, y.iloc[rows].copy()
+    return X_reduced, np.array(np.asarray(y)[rows], copy=True)

@@ -651,3 +651,118 @@ def test_make_benchmark_rejects_bad_arguments(kwargs, name, tmp_path):
     with pytest.raises(ValueError, match=name):
         make_benchmark(**{"n_catheters": 1, "n_runs": 1, **kwargs}, data_home=tmp_path)
     assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------
+# shaft repositioned during motion
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def changed_run(run0):
+    """The run of ``run0`` (seed 0, setting S01) with the shaft moved to S13 after 45 s of motion."""
+    return simulate_run(random_state=0, setting_after="S13", change_after_s=45.0)
+
+
+def test_shaft_change_happens_where_runs_says(run0, changed_run):
+    runs = changed_run.runs
+    assert runs.loc[0, "setting"] == "S01" and runs.loc[0, "setting_after"] == "S13"
+    n_sweep = runs.loc[0, "n_sweep"]
+    t_change = runs.loc[0, "change_time_s"]
+    assert t_change == pytest.approx(n_sweep / 10.0 + 45.0)
+    # the unchanged run has no change columns
+    assert "change_time_s" not in run0.runs and "setting_after" not in run0.runs
+    X, X0 = changed_run.X, run0.X
+    before = (X["t"] < t_change).to_numpy()
+    # up to the change: the same run, sample for sample
+    pd.testing.assert_frame_equal(X[before], X0[before], check_exact=True)
+    assert_array_equal(changed_run.y_true[before], run0.y_true[before])
+    assert_array_equal(changed_run.sensors[before].to_numpy(), run0.sensors[before].to_numpy())
+    # from the change on: same motors, other torques and tip
+    assert_array_equal(X[["q1", "q2"]].to_numpy(), X0[["q1", "q2"]].to_numpy())
+    k = int(np.flatnonzero(~before)[0])
+    tau, tau0 = X[["tau1", "tau2"]].to_numpy(), X0[["tau1", "tau2"]].to_numpy()
+    assert np.abs(tau[k:] - tau0[k:]).mean() > 2.0  # measured: 6.1 N mm
+    tip_shift = np.linalg.norm(changed_run.y_true[k:] - run0.y_true[k:], axis=1)
+    assert tip_shift.mean() > 1.0
+    # the base of the bending section moves with the shaft
+    base = changed_run.sensors[["base_px", "base_py", "base_pz"]].to_numpy()
+    jump = np.linalg.norm(base[k:].mean(axis=0) - base[:k].mean(axis=0))
+    assert jump > 1.0
+    check_recordings(X, changed_run.y)
+
+
+def test_later_shaft_change_keeps_a_longer_identical_stretch(changed_run):
+    # The change time is the first sample in the new setting: a change later
+    # in the same run leaves a longer stretch identical to the unchanged run.
+    later = simulate_run(random_state=0, setting_after="S13", change_after_s=90.0)
+    k_early = int(np.searchsorted(changed_run.X["t"], changed_run.runs.loc[0, "change_time_s"]))
+    k_late = int(np.searchsorted(later.X["t"], later.runs.loc[0, "change_time_s"]))
+    assert k_late - k_early == 450
+    assert_array_equal(later.y_true[:k_early], changed_run.y_true[:k_early])
+    assert not np.array_equal(later.y_true[k_early:k_late], changed_run.y_true[k_early:k_late])
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"setting_after": "S99"}, "setting_after"),
+        ({"setting_after": "S01"}, "setting_after"),
+        ({"setting": "S00", "setting_after": "S00"}, "setting_after"),
+        ({"setting_after": "S05", "change_after_s": -1.0}, "change_after_s"),
+        ({"setting_after": "S05", "change_after_s": np.nan}, "change_after_s"),
+        ({"setting_after": "S05", "change_after_s": "10"}, "change_after_s"),
+        ({"setting_after": "S05", "change_after_s": 1000.0}, "change_after_s"),
+    ],
+)
+def test_simulate_run_rejects_bad_shaft_changes(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        simulate_run(random_state=0, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def changed_benchmark():
+    """One catheter in all 17 settings, one run each, every shaft repositioned."""
+    return make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, cache=False)
+
+
+def test_shaft_change_benchmark(small_benchmark, changed_benchmark):
+    runs = changed_benchmark.runs
+    assert list(runs["run"]) == list(small_benchmark.runs["run"])
+    assert (runs["setting_after"] != runs["setting"]).all()
+    assert runs["setting_after"].nunique() > 5  # drawn among the other settings
+    after_motion = runs["change_time_s"] - runs["n_sweep"] / 10.0
+    assert after_motion.between(30.0, 90.0).all()
+    assert after_motion.std() > 5.0
+    pd.testing.assert_frame_equal(
+        runs.drop(columns=["setting_after", "change_time_s", "noise_floor_mm"]),
+        small_benchmark.runs.drop(columns="noise_floor_mm"),
+        check_exact=True,
+    )
+    assert "repositioned" in changed_benchmark.DESCR
+    assert changed_benchmark.key["shaft_change"] is True
+    X, X0 = changed_benchmark.X, small_benchmark.X
+    t_change = X["run"].map(runs.set_index("run")["change_time_s"]).astype(float)
+    before = (X["t"] < t_change).to_numpy()
+    pd.testing.assert_frame_equal(X[before], X0[before], check_exact=True)
+    assert_array_equal(changed_benchmark.y[before], small_benchmark.y[before])
+    assert not np.array_equal(X.loc[~before, "tau1"], X0.loc[~before, "tau1"])
+    check_recordings(X, changed_benchmark.y)
+
+
+def test_shaft_change_keeps_the_default_benchmark_and_its_cache(small_benchmark, tmp_path, monkeypatch):
+    calls = _count_simulations(monkeypatch)
+    default = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    explicit = make_benchmark(n_catheters=1, n_runs=1, shaft_change=False, data_home=tmp_path)
+    assert len(calls) == 1  # shaft_change=False is the default benchmark, from its cache
+    _assert_same_data(explicit, small_benchmark)
+    assert explicit.key == default.key and "shaft_change" not in default.key
+    changed = make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, data_home=tmp_path)
+    again = make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, data_home=tmp_path)
+    assert len(calls) == 2  # cached separately, then loaded
+    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+    _assert_same_data(changed, again)
+    pd.testing.assert_frame_equal(changed.runs, again.runs, check_exact=True)
+
+
+def test_make_benchmark_rejects_bad_shaft_change(tmp_path):
+    with pytest.raises(ValueError, match="shaft_change"):
+        make_benchmark(n_catheters=1, n_runs=1, shaft_change="yes", data_home=tmp_path)

@@ -8,7 +8,7 @@ happens in ``transform`` / ``predict``, where each run's sweep is part of the
 input. Reference values on motion rows are never read.
 """
 
-from numbers import Integral
+from numbers import Integral, Real
 
 import numpy as np
 import pandas as pd
@@ -33,7 +33,9 @@ BACKBONE_COLUMNS = ("b_x", "b_y", "b_z")
 def _calibrate_run(backbone, run, q, ref, sweep):
     """Calibrate one run on its sweep rows and evaluate it on all its rows."""
     q_sweep, ref_sweep = q[sweep], ref[sweep]
-    rays = find_rays(q_sweep, n_rays=backbone.n_rays, run=run)
+    rays = find_rays(
+        q_sweep, n_rays=backbone.n_rays, run=run, ray_spacing_deg=backbone.ray_spacing_deg
+    )
     check_sweep_references(ref_sweep, rays, run=run)
     params, info = backbone._calibrate(q_sweep, ref_sweep, rays)
     return backbone._evaluate(q, params), params, info
@@ -44,12 +46,14 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
 
     _parameter_constraints: dict = {
         "n_rays": [Interval(Integral, 3, None, closed="left")],
+        "ray_spacing_deg": [None, Interval(Real, 0, 360, closed="right")],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
         "n_jobs": [None, Integral],
     }
 
-    def __init__(self, *, n_rays=8, max_iter=100, n_jobs=None):
+    def __init__(self, *, n_rays=8, ray_spacing_deg=None, max_iter=100, n_jobs=None):
         self.n_rays = n_rays
+        self.ray_spacing_deg = ray_spacing_deg
         self.max_iter = max_iter
         self.n_jobs = n_jobs
 
@@ -195,8 +199,15 @@ class PCCBackbone(_BaseBackbone):
     Parameters
     ----------
     n_rays : int, default=8
-        Number of rays of the initial sweep; a sweep with another number of
-        rays is rejected.
+        Number of rays of the initial sweep (at least 3); a sweep with
+        another number of rays is rejected.
+    ray_spacing_deg : float, default=None
+        Angle between neighbouring directions of the sweep layout (degrees);
+        None means ``360 / n_rays`` (evenly spaced rays). Give the spacing of
+        the full layout when the sweep keeps only some of its rays, e.g.
+        ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
+        (:func:`skcath.sweep.reduce_sweep`); see
+        :func:`skcath.sweep.find_rays`.
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per calibration.
     n_jobs : int, default=None
@@ -270,8 +281,15 @@ class PDLBackbone(_BaseBackbone):
     Parameters
     ----------
     n_rays : int, default=8
-        Number of rays of the initial sweep; a sweep with another number of
-        rays is rejected.
+        Number of rays of the initial sweep (at least 3); a sweep with
+        another number of rays is rejected.
+    ray_spacing_deg : float, default=None
+        Angle between neighbouring directions of the sweep layout (degrees);
+        None means ``360 / n_rays`` (evenly spaced rays). Give the spacing of
+        the full layout when the sweep keeps only some of its rays, e.g.
+        ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
+        (:func:`skcath.sweep.reduce_sweep`); see
+        :func:`skcath.sweep.find_rays`.
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per ray.
     n_jobs : int, default=None

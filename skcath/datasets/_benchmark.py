@@ -14,7 +14,7 @@ import numpy as np
 from ._catheter import sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._sensors import DistortionField
-from ._simulator import RunSpec, simulate_runs
+from ._simulator import RunSpec, ShaftChange, simulate_runs
 
 __all__ = ["get_data_home", "clear_data_home", "make_benchmark", "SIMULATOR_VERSION"]
 
@@ -55,20 +55,45 @@ def _check_int(name, value, low):
     return int(value)
 
 
-def benchmark_specs(n_catheters=4, n_runs=3, random_state=0):
+#: Range of the time of a shaft change after the first motion sample (s):
+#: the motion phase lasts at least 164 s, so at least 74 s follow the change.
+CHANGE_AFTER_S = (30.0, 90.0)
+
+
+def _draw_change(entropy, setting, settings):
+    """Shaft change of one run: another setting and a time, from their own seed.
+
+    The change draws from a child of the run's seed sequence, so the run's
+    own draws, and the run up to the change, are those of the unchanged run.
+    """
+    draw_seed, pose_seed = np.random.SeedSequence(entropy, spawn_key=(1,)).spawn(2)
+    rng = np.random.default_rng(draw_seed)
+    others = [s for s in settings if s.name != setting.name]
+    after = others[int(rng.integers(len(others)))]
+    return ShaftChange(after, float(rng.uniform(*CHANGE_AFTER_S)), pose_seed)
+
+
+def benchmark_specs(n_catheters=4, n_runs=3, random_state=0, shaft_change=False):
     """Run specifications of the benchmark, in catheter, setting, repeat order.
 
     Catheter ``k`` and each run draw from seeds derived from
     ``(random_state, k)`` and ``(random_state, k, setting, repeat)``, so a
-    smaller benchmark is a subset of a larger one with the same seed.
+    smaller benchmark is a subset of a larger one with the same seed. With
+    ``shaft_change``, every run also gets a :class:`ShaftChange` drawn from
+    its own seed (see :func:`make_benchmark`).
     """
     specs = []
+    settings = shaft_settings()
     for k in range(n_catheters):
         cat = sample_catheter(np.random.SeedSequence([random_state, k]), f"C{k + 1}")
-        for s_idx, setting in enumerate(shaft_settings()):
+        for s_idx, setting in enumerate(settings):
             for r in range(n_runs):
-                seed = np.random.SeedSequence([random_state, k, s_idx, r])
-                specs.append(RunSpec(f"{cat.name}-{setting.name}-R{r + 1}", cat, setting, r + 1, seed))
+                entropy = [random_state, k, s_idx, r]
+                seed = np.random.SeedSequence(entropy)
+                change = _draw_change(entropy, setting, settings) if shaft_change else None
+                specs.append(
+                    RunSpec(f"{cat.name}-{setting.name}-R{r + 1}", cat, setting, r + 1, seed, change)
+                )
     return specs
 
 
@@ -78,6 +103,7 @@ def make_benchmark(
     *,
     mechanism="play",
     random_state=0,
+    shaft_change=False,
     data_home=None,
     cache=True,
     verbose=False,
@@ -105,6 +131,16 @@ def make_benchmark(
         rate-dependent Dahl friction with tendon creep.
     random_state : int, default=0
         Seed of everything random. Same seed, same data.
+    shaft_change : bool, default=False
+        Reposition the shaft in the middle of every run's motion phase: at
+        a time drawn uniformly 30-90 s after the first motion sample, the
+        shaft moves to another of the 17 settings, drawn uniformly; from
+        there on the run continues with that setting's transmission (wrap,
+        offsets, dead zone, gains, routing, friction) and base pose. The
+        motor trajectory, the noise and everything before the change are
+        those of the run without a change (same seed). ``runs`` gets the
+        columns ``setting_after`` and ``change_time_s`` (time ``t`` of the
+        first sample in the new setting, s). Cached separately.
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
@@ -160,6 +196,10 @@ def make_benchmark(
         "mechanism": mechanism,
         "random_state": random_state,
     }
+    if not isinstance(shaft_change, (bool, np.bool_)):
+        raise ValueError(f"shaft_change must be a bool; got {shaft_change!r}.")
+    if shaft_change:  # the default benchmark keeps its key, and its cache file
+        key["shaft_change"] = True
     digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:12]
     path = None
     if cache:
@@ -173,7 +213,7 @@ def make_benchmark(
                 logger.warning("ignoring unreadable cache file %s (%s)", path, exc)
 
     start = time.perf_counter()
-    specs = benchmark_specs(n_catheters, n_runs, random_state)
+    specs = benchmark_specs(n_catheters, n_runs, random_state, bool(shaft_change))
     field = DistortionField(np.random.SeedSequence([random_state, 10**6]))
     bunch = simulate_runs(specs, mechanism=mechanism, field=field)
     cats = {s.catheter.name: s.catheter for s in specs}
@@ -196,5 +236,11 @@ def _describe(bunch, n_catheters, n_runs):
         f"{n_catheters} catheters x 17 shaft settings x {n_runs} runs = {len(runs)} runs, "
         f"{len(bunch.X)} samples at 10 Hz; hysteresis mechanism: {bunch.mechanism}.\n"
         "Each run: 8-ray outward-and-return sweep, then a 100-step random walk of both motors.\n"
-        f"Sensor-noise floor: {bunch.noise_floor:.2f} mm RMS."
+        + (
+            "The shaft is repositioned to another setting during each run's motion "
+            "(runs: setting_after, change_time_s).\n"
+            if "change_time_s" in runs
+            else ""
+        )
+        + f"Sensor-noise floor: {bunch.noise_floor:.2f} mm RMS."
     )

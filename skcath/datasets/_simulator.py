@@ -20,7 +20,7 @@ from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
 from ._protocol import run_protocol
 from ._sensors import DistortionField, measure_pose
 
-__all__ = ["RunSpec", "simulate_runs", "simulate_run"]
+__all__ = ["RunSpec", "ShaftChange", "simulate_runs", "simulate_run"]
 
 RATE_HZ = 10.0
 
@@ -40,14 +40,39 @@ RUN_VARIATION = {
 
 
 @dataclass(frozen=True)
+class ShaftChange:
+    """A repositioning of the shaft during the motion phase of a run.
+
+    Attributes
+    ----------
+    setting : ShaftSetting
+        Shaft setting from the change on.
+    after_s : float
+        Time of the change after the first motion sample (s).
+    seed : numpy.random.SeedSequence
+        Seed of the base pose after the change (the base of the bending
+        section moves with the shaft).
+    """
+
+    setting: ShaftSetting
+    after_s: float
+    seed: np.random.SeedSequence
+
+
+@dataclass(frozen=True)
 class RunSpec:
-    """What to simulate for one run: a catheter in a setting, and a seed."""
+    """What to simulate for one run: a catheter in a setting, and a seed.
+
+    ``change`` (None: the shaft stays in ``setting`` for the whole run)
+    repositions the shaft during the motion phase.
+    """
 
     run: str
     catheter: Catheter
     setting: ShaftSetting
     repeat: int
     seed: np.random.SeedSequence
+    change: ShaftChange | None = None
 
 
 def _ou(rng, n, std, tau_s, size=2):
@@ -106,7 +131,20 @@ def _draw_run(spec):
     offsets = cfg["offsets"] + rng.normal(0.0, v["offset_jitter_deg"], 2)
     offsets = offsets + _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
     gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
-    return {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
+    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
+    if spec.change is not None:
+        # same per-run jitter and drift; only the setting's offsets move
+        k = n_sweep + int(round(spec.change.after_s * RATE_HZ))
+        if not n_sweep <= k < n:
+            raise ValueError(
+                f"change_after_s={spec.change.after_s!r} s is outside the motion phase of run "
+                f"{spec.run!r}, which lasts {(n - n_sweep) / RATE_HZ:.1f} s."
+            )
+        cfg_after = configure(spec.catheter, spec.change.setting)
+        draw["cfg_after"] = cfg_after
+        draw["u_after"] = draw["u"] + (cfg["offsets"] - cfg_after["offsets"])
+        draw["change_index"] = k
+    return draw
 
 
 def _transmission_params(specs, configs):
@@ -128,13 +166,14 @@ def _transmission_params(specs, configs):
     }
 
 
-def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
-    """Kinematics, torque and EM sensors of one run, vectorised over samples."""
-    cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
-    q, n = draw["q"], len(draw["q"])
-    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
-    e = _soft_dead_zone(_lag(v, cat.tip_lag), cfg["dead_zone"])
-    theta = _axis_gains(e, cfg["gains"]) * draw["gain_scale"]
+def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
+    """Bend, tip position in the kinematic frame and tendon torque of one setting.
+
+    Stateless (vectorised over samples) once the hysteresis output ``phi``,
+    the lagged effective input ``lagged`` and the wind-up are known.
+    """
+    e = _soft_dead_zone(lagged, cfg["dead_zone"])
+    theta = _axis_gains(e, cfg["gains"]) * gain_scale
     c12, c21 = cfg["coupling"]
     theta = _route(theta @ np.array([[1.0, c21], [c12, 1.0]]), cfg["routing"])
     cw, sw = np.cos(windup), np.sin(windup)
@@ -150,8 +189,30 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
     exponent = (cfg["capstan_exponent"] + cat.mu * a[:, None]) * phi
     pos = (cat.pretension + cat.stiffness * np.maximum(e, 0.0)) * np.exp(exponent)
     neg = (cat.pretension + cat.stiffness * np.maximum(-e, 0.0)) * np.exp(-exponent)
+    return a, delta, p_k, cat.pulley_radius * (pos - neg)
+
+
+def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
+    """Kinematics, torque and EM sensors of one run, vectorised over samples.
+
+    For a run whose shaft is repositioned at sample ``draw["change_index"]``,
+    ``v``, ``phi`` and ``windup`` are already spliced at the change (see
+    :func:`_splice_changes`); the stateless mechanics of the new setting take
+    over from that sample on, and the base of the bending section moves to a
+    pose of the new setting.
+    """
+    cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
+    q, n = draw["q"], len(draw["q"])
+    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
+    lagged = _lag(v, cat.tip_lag)
+    a, delta, p_k, drive = _mechanics(cat, cfg, lagged, phi, windup, draw["gain_scale"])
+    k = draw.get("change_index")
+    if k is not None:  # the new setting's mechanics from the change on
+        a[k:], delta[k:], p_k[k:], drive[k:] = _mechanics(
+            cat, draw["cfg_after"], lagged[k:], phi[k:], windup[k:], draw["gain_scale"][k:]
+        )
     omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
-    tau = cat.pulley_radius * (pos - neg) + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
+    tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
     tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
     tau = np.round(tau / cat.torque_step) * cat.torque_step
 
@@ -163,6 +224,15 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
     tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
     base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
     base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
+    if k is not None:  # the base of the bending section moves with the shaft
+        r_b, p_b = _base_pose(np.random.default_rng(spec.change.seed), spec.change.setting)
+        tip_pos[k:] = p_b + r_b.apply(p_k[k:])
+        bend_after = Rotation.from_rotvec(tip_rotvec(a[k:], delta[k:]))
+        tip_rot = Rotation.concatenate([tip_rot[:k], r_b * bend_after])
+        base_pos[k:] = p_b + r_b.apply(cat.mount_position)
+        base_rot = Rotation.concatenate(
+            [base_rot[:k], Rotation.from_quat(np.repeat((r_b * mount.inv()).as_quat()[None], n - k, axis=0))]
+        )
     tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
     base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
     if dropout_rate > 0:
@@ -172,6 +242,32 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
     y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
     sensors = np.column_stack([tip_meas, tip_quat, base_meas, base_quat])
     return tau, y, y_true, sensors
+
+
+def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism):
+    """Switch the transmission of repositioned runs to their new setting, in place.
+
+    The transmission of each changed run is simulated a second time over the
+    whole run with the new setting's friction, offsets and wind-up, and its
+    output replaces the first one from the change on: at the change, the
+    tendons re-seat in the new shaft path, and their friction state is the
+    one the new path has after the same motor history.
+    """
+    u_after = u[:, changed].copy()
+    for i, j in enumerate(changed):
+        u_after[: lengths[j], i] = draws[j]["u_after"]
+        u_after[lengths[j]:, i] = draws[j]["u_after"][-1]
+    sub_specs = [specs[j] for j in changed]
+    configs = [draws[j]["cfg_after"] for j in changed]
+    v_after, phi_after = simulate_transmission(
+        u_after, 1.0 / RATE_HZ, _transmission_params(sub_specs, configs), mechanism
+    )
+    windup_after = torsional_windup(u_after, np.array([c["windup"] for c in configs]))
+    for i, j in enumerate(changed):
+        k = draws[j]["change_index"]
+        v_all[k:, j] = v_after[k:, i]
+        phi_all[k:, j] = phi_after[k:, i]
+        windup_all[k:, j] = windup_after[k:, i]
 
 
 def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
@@ -193,6 +289,10 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
     bunch : sklearn.utils.Bunch
         ``X`` (long format), ``y``, ``y_true``, ``sensors`` and ``runs``
         (one row per run with its noise floor); see :func:`make_benchmark`.
+        When a spec has a ``change``, ``runs`` has two more columns:
+        ``setting_after`` (name of the setting from the change on, None for
+        runs without a change) and ``change_time_s`` (time ``t`` of the
+        first sample in the new setting, s; NaN without a change).
     """
     if mechanism not in MECHANISMS:
         raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
@@ -209,6 +309,9 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
         u, 1.0 / RATE_HZ, _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
     )
     windup_all = torsional_windup(u, np.array([d["cfg"]["windup"] for d in draws]))
+    changed = [j for j, d in enumerate(draws) if "change_index" in d]
+    if changed:
+        _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism)
 
     frames, ys, ys_true, sensors, rows = [], [], [], [], []
     for j, (spec, d) in enumerate(zip(specs, draws)):
@@ -250,6 +353,10 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
                 "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
             }
         )
+        if changed:
+            k = d.get("change_index")
+            rows[-1]["setting_after"] = None if k is None else spec.change.setting.name
+            rows[-1]["change_time_s"] = np.nan if k is None else k / RATE_HZ
     X = pd.concat(frames, ignore_index=True)
     for col in (*fmt.ID_COLUMNS, fmt.PHASE):
         X[col] = X[col].astype("category")
@@ -275,8 +382,15 @@ def simulate_run(
     run="run-0",
     field=True,
     dropout_rate=0.0,
+    setting_after=None,
+    change_after_s=60.0,
 ):
     """Simulate one recording: an 8-ray sweep then a 100-step random walk at 10 Hz.
+
+    With ``setting_after``, the shaft is repositioned during the motion
+    phase: from ``change_after_s`` seconds after the first motion sample on,
+    the run continues in the new setting (see :func:`make_benchmark`,
+    ``shaft_change``).
 
     Parameters
     ----------
@@ -297,6 +411,12 @@ def simulate_run(
         Whether the tracker field is distorted.
     dropout_rate : float
         Probability that the tip sensor is lost at a sample (NaN target).
+    setting_after : ShaftSetting, str or None
+        Shaft setting after a repositioning of the shaft during motion, or
+        its name; None (default) keeps ``setting`` for the whole run.
+    change_after_s : float, default=60.0
+        Time of the repositioning after the first motion sample (s); used
+        only with ``setting_after``. The motion phase lasts 164-218 s.
 
     Returns
     -------
@@ -304,19 +424,41 @@ def simulate_run(
         ``X`` (long format, see ``docs/data_format.rst``), ``y`` (n, 3)
         measured tip in the base frame (mm), ``y_true`` (n, 3) noise-free tip,
         ``sensors`` (raw EM poses), ``runs`` (one row), ``noise_floor`` (mm).
+        With ``setting_after``, ``runs`` also has ``setting_after`` and
+        ``change_time_s`` (time ``t`` of the first sample in the new
+        setting, s). Up to the change, the run is identical to the same run
+        without a change.
     """
-    seeds = np.random.SeedSequence(_entropy(random_state)).spawn(3)
+    root = np.random.SeedSequence(_entropy(random_state))
+    seeds = root.spawn(3)
     if catheter is None:
         catheter = sample_catheter(seeds[0], "C1")
-    if setting is None or isinstance(setting, str):
-        name = "S01" if setting is None else setting
-        table = {s.name: s for s in shaft_settings()}
-        if name not in table:
-            raise ValueError(f"setting={name!r} is not one of {sorted(table)}.")
-        setting = table[name]
-    spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1])
+    setting = _lookup_setting("setting", "S01" if setting is None else setting)
+    change = None
+    if setting_after is not None:
+        setting_after = _lookup_setting("setting_after", setting_after)
+        if setting_after.name == setting.name:
+            raise ValueError(f"setting_after={setting_after.name!r} must differ from setting.")
+        is_number = isinstance(change_after_s, (int, float, np.number))
+        is_number = is_number and not isinstance(change_after_s, bool)
+        if not (is_number and np.isfinite(change_after_s) and change_after_s >= 0):
+            raise ValueError(
+                f"change_after_s must be a finite number of seconds >= 0; got {change_after_s!r}."
+            )
+        change = ShaftChange(setting_after, float(change_after_s), root.spawn(1)[0])
+    spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1], change=change)
     dist = DistortionField(seeds[2]) if field else None
     return simulate_runs([spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate)
+
+
+def _lookup_setting(name, setting):
+    """A ShaftSetting from itself or from its name in :func:`shaft_settings`."""
+    if isinstance(setting, ShaftSetting):
+        return setting
+    table = {s.name: s for s in shaft_settings()}
+    if setting not in table:
+        raise ValueError(f"{name}={setting!r} is not one of {sorted(table)}.")
+    return table[setting]
 
 
 def _entropy(random_state):

@@ -6,7 +6,19 @@ held out within each catheter and with whole catheters held out;
 :func:`compute_tables` turns the held-out predictions into the paper's
 tables; :func:`write_results` saves them as CSV and draws the figures.
 ``python -m skcath reproduce`` runs all three; see ``docs/results.rst``.
+:func:`run_calibration_budget` scores the methods on reduced calibration
+sweeps (``python -m skcath calibration-budget``, see
+``docs/calibration_budget.rst``).
 """
+
+from ._budget import (
+    BUDGET_FILES,
+    BUDGET_METHODS,
+    format_budget_report,
+    plot_calibration_budget,
+    run_calibration_budget,
+    write_budget_results,
+)
 
 from ._protocol import run_protocol
 from ._report import format_report, write_results
@@ -14,6 +26,8 @@ from ._schedule import FULL, QUICK, VARIANTS, Schedule, get_schedule
 from ._tables import COMPARISONS, MAIN_METHODS, TORQUE_CONTEXT, compute_tables
 
 __all__ = [
+    "BUDGET_FILES",
+    "BUDGET_METHODS",
     "COMPARISONS",
     "FULL",
     "MAIN_METHODS",
@@ -22,8 +36,12 @@ __all__ = [
     "TORQUE_CONTEXT",
     "VARIANTS",
     "compute_tables",
+    "format_budget_report",
     "format_report",
     "get_schedule",
+    "plot_calibration_budget",
+    "run_calibration_budget",
     "run_protocol",
+    "write_budget_results",
     "write_results",
 ]

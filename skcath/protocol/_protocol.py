@@ -62,9 +62,19 @@ def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
     when the task is dispatched; ``max_nbytes=None`` sends the slices to the
     workers by pickling instead of memory-mapping them, because joblib keeps
     every memory-mapped argument until the whole batch of tasks ends, which
-    would hold hundreds of training sets in memory at once.
+    would hold hundreds of training sets in memory at once. Results come in
+    the order the tasks finish; a joblib backend that cannot stream results
+    (Ray's) returns them all at the end instead, which changes nothing
+    downstream (every result carries its key) but the progress bar.
     """
-    results = Parallel(n_jobs=n_jobs, return_as="generator_unordered", max_nbytes=None)(tasks)
+    for return_as in ("generator_unordered", "generator", "list"):
+        try:
+            parallel = Parallel(n_jobs=n_jobs, return_as=return_as, max_nbytes=None)
+            break
+        except ValueError:  # the active backend cannot return results this way
+            if return_as == "list":
+                raise
+    results = parallel(tasks)
     bar = tqdm(total=n_tasks, desc=desc, unit="model", disable=not verbose, dynamic_ncols=True)
     out = []
     with bar:

@@ -328,13 +328,14 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             rotations[k] = sweep_frame(q[rows], b[rows], run=runs[k])
         return rotations[codes]
 
-    def _sequences(self, X, y=None):
+    def _sequences(self, X, y=None, dtype=np.float32):
         """Padded motion features, sweep features, and residual targets.
 
         With ``frame="sweep"`` the nominal tip ``b`` among the features and
         the residual ``e`` are expressed in each run's sweep frame. Returns the
         feature frame, the padded motion and sweep sequences, the residual of
         every row (None without ``y``) and the per-row rotations (or None).
+        ``dtype`` is the precision of the padded sequences.
         """
         F, codes, runs = feature_frame(X)
         x_names = step_feature_names(self.use_torque)
@@ -348,8 +349,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             e = y - b
             if rotations is not None:
                 e = np.einsum("nij,nj->ni", rotations, e)
-        motion = to_padded(F, x_names, y=e, phase=fmt.MOTION)
-        sweep = to_padded(F, s_names, phase=fmt.SWEEP)
+        motion = to_padded(F, x_names, y=e, phase=fmt.MOTION, dtype=dtype)
+        sweep = to_padded(F, s_names, phase=fmt.SWEEP, dtype=dtype)
         return F, motion, sweep, e, rotations
 
     def _fit_statistics(self, F, e):
@@ -369,10 +370,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         sigma = e[finite].std(axis=0)
         self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
 
-    def _context_input(self, sweep):
+    def _context_input(self, sweep, dtype=np.float32):
         """Normalised sweep subsampled at ``sweep_stride``, and its valid lengths."""
         stride = self.sweep_stride
-        values = self.s_scaler_.transform(sweep.values[:, ::stride]).astype(np.float32)
+        values = self.s_scaler_.transform(sweep.values[:, ::stride]).astype(dtype)
         lengths = -(-sweep.lengths // stride)  # ceil division
         valid = np.arange(values.shape[1])[None, :] < lengths[:, None]
         values[~valid] = 0.0
@@ -488,8 +489,20 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             return int(self.random_state)
         return int(check_random_state(self.random_state).randint(2**31 - 1))
 
+    def _module_dtype(self):
+        """Numpy dtype of the network's parameters (float32 unless converted)."""
+        param = next(self.module_.parameters(), None)
+        if param is None:
+            return np.dtype(np.float32)
+        return torch.empty((), dtype=param.dtype).numpy().dtype
+
     def predict_residual(self, X):
         """Applied residual ``r`` (mm) of every row: clipped on motion rows, 0 on sweep rows.
+
+        The network runs in the precision of its parameters: float32 as
+        trained, or float64 after ``module_.double()`` (used to check the
+        streaming estimator of :mod:`skcath.online` without float32
+        rounding).
 
         Parameters
         ----------
@@ -505,13 +518,15 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 f"This {type(self).__name__} instance is not fitted yet; call fit first."
             )
         X, _ = self._check_X(X)
-        F, motion, sweep, _, rotations = self._sequences(X)
+        # the network's own precision: float32, or float64 after module_.double()
+        dtype = self._module_dtype()
+        F, motion, sweep, _, rotations = self._sequences(X, dtype=dtype)
         if motion.max_length == 0:  # no motion row: nothing to correct
             return np.zeros((len(X), 3))
-        data = {"features": self.x_scaler_.transform(motion.values).astype(np.float32)}
+        data = {"features": self.x_scaler_.transform(motion.values).astype(dtype)}
         data["features"][~motion.mask] = 0.0
         if self.use_context:
-            data["sweep"], data["sweep_length"] = self._context_input(sweep)
+            data["sweep"], data["sweep_length"] = self._context_input(sweep, dtype)
         # fork_rng: iterating a DataLoader draws a seed from torch's global
         # generator, which prediction must leave alone
         with _torch_runtime(self.n_threads, None), torch.random.fork_rng(devices=[]):

@@ -18,13 +18,13 @@ Column names used here (the "skcath names"):
 """
 
 import numbers
-from pathlib import Path
+from pathlib import Path, PurePath
 
 import numpy as np
 import pandas as pd
 from pandas.api import types as pdt
 
-from ._format import (
+from .._format import (
     CATHETER,
     ID_COLUMNS,
     MOTION,
@@ -41,7 +41,7 @@ from ._format import (
     TIME,
     TORQUE_COLUMNS,
 )
-from .frames import _check_quat_order, tip_in_base_frame
+from ..frames import _check_quat_order, tip_in_base_frame
 
 __all__ = ["VALID_STRINGS", "read_recording"]
 
@@ -1028,6 +1028,57 @@ def read_recording(
     """
     path = Path(path)
     kind, stem = _file_kind(path)
+    options = _check_options(
+        columns=columns,
+        quat_order=quat_order,
+        catheter=catheter,
+        setting=setting,
+        run=run,
+        rate_hz=rate_hz,
+        constants=constants,
+        scale=scale,
+        phase=phase,
+        n_sweep=n_sweep,
+        valid=valid,
+        tip_offset=tip_offset,
+    )
+    frame = _read_table(path, kind)
+    return _recording_from_frame(frame, path.name, stem, options)
+
+
+def _check_options(
+    *,
+    columns=None,
+    quat_order="wxyz",
+    catheter=None,
+    setting=None,
+    run=None,
+    rate_hz=None,
+    constants=None,
+    scale=None,
+    phase=None,
+    n_sweep=None,
+    valid=None,
+    tip_offset=None,
+):
+    """Validate the reading options of :func:`read_recording`.
+
+    Parameters
+    ----------
+    columns, quat_order, catheter, setting, run, rate_hz, constants, scale, \
+phase, n_sweep, valid, tip_offset
+        As in :func:`read_recording`.
+
+    Returns
+    -------
+    options : dict
+        Checked options, passed to :func:`_recording_from_frame`.
+
+    Raises
+    ------
+    ValueError
+        On an invalid option.
+    """
     quat_order = _check_quat_order(quat_order)
     mapping = _check_columns_arg(columns, quat_order)
     constants = _check_number_map(constants, "constants", _CONSTANT_NAMES, finite=True)
@@ -1042,8 +1093,108 @@ def read_recording(
     _check_rate(rate_hz)
     _check_phase_args(phase, n_sweep)
     valid_column, accepted = _check_valid_arg(valid)
+    return {
+        "mapping": mapping,
+        "constants": constants,
+        "scale": scale,
+        "arguments": arguments,
+        "rate_hz": rate_hz,
+        "phase": phase,
+        "n_sweep": n_sweep,
+        "valid_column": valid_column,
+        "accepted": accepted,
+        "tip_offset": tip_offset,
+    }
 
-    frame = _read_table(path, kind)
+
+#: Keyword options of :func:`read_recording` that the other readers pass on.
+_OPTION_NAMES = (
+    "columns",
+    "quat_order",
+    "catheter",
+    "setting",
+    "run",
+    "rate_hz",
+    "constants",
+    "scale",
+    "phase",
+    "n_sweep",
+    "valid",
+    "tip_offset",
+)
+
+
+def _options_from_kwargs(kwargs, caller):
+    """Check the :func:`read_recording` options passed on by another reader.
+
+    Parameters
+    ----------
+    kwargs : dict
+        Keyword arguments given to ``caller``.
+    caller : str
+        Name of the reader, for messages.
+
+    Returns
+    -------
+    options : dict
+        Output of :func:`_check_options`.
+
+    Raises
+    ------
+    TypeError
+        On a keyword that is not an option of :func:`read_recording`.
+    ValueError
+        On an invalid option value.
+    """
+    unknown = sorted(set(kwargs) - set(_OPTION_NAMES))
+    if unknown:
+        raise TypeError(
+            f"{caller}() got the unknown keyword argument(s) {unknown}; the reading "
+            f"options are {list(_OPTION_NAMES)}."
+        )
+    return _check_options(**kwargs)
+
+
+def _recording_from_frame(frame, name, stem, options):
+    """Convert a table in file column names into ``(X, y)``.
+
+    Shared by :func:`read_recording` and the other readers of
+    :mod:`skcath.io`, which first build such a table from their source.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Source table (not modified).
+    name : str
+        Name of the source, used at the start of error messages.
+    stem : str
+        Default run id.
+    options : dict
+        Output of :func:`_check_options`.
+
+    Returns
+    -------
+    X : pandas.DataFrame
+    y : ndarray of shape (n_rows, 3)
+        As in :func:`read_recording`.
+
+    Raises
+    ------
+    ValueError
+        As in :func:`read_recording`.
+    """
+    path = PurePath(name.replace("/", "_"))
+    mapping = options["mapping"]
+    constants = options["constants"]
+    scale = options["scale"]
+    arguments = options["arguments"]
+    rate_hz = options["rate_hz"]
+    phase = options["phase"]
+    n_sweep = options["n_sweep"]
+    valid_column = options["valid_column"]
+    accepted = options["accepted"]
+    tip_offset = options["tip_offset"]
+
     if len(frame) == 0:
         raise ValueError(f"{path.name}: the file has no rows; a recording needs samples.")
     source = _source_columns(frame, mapping, path)
@@ -1081,7 +1232,7 @@ def read_recording(
     X = pd.DataFrame(data, index=pd.RangeIndex(len(frame)), columns=list(REQUIRED_COLUMNS))
 
     # Final check of the assembled recording (single call site).
-    from ._validation import check_recordings
+    from .._validation import check_recordings
 
     require_sweep = not (phase == MOTION or n_sweep == 0)
     try:

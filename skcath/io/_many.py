@@ -1,0 +1,268 @@
+"""Read many recordings at once into one long table.
+
+:func:`read_recordings` reads every file of a folder (or of a glob pattern, or
+listed in a manifest CSV) with :func:`skcath.io.read_recording`, takes the
+catheter, setting and run ids from the file names or the manifest, and
+concatenates the runs.
+"""
+
+import glob
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
+
+from .._format import CATHETER, ID_COLUMNS, RUN, SETTING
+from ._recording import (
+    _CSV_SUFFIXES,
+    _OPTION_NAMES,
+    _PARQUET_SUFFIXES,
+    _file_kind,
+    read_recording,
+)
+
+__all__ = ["read_recordings"]
+
+#: Manifest columns that are not read options.
+_MANIFEST_PATH = "path"
+
+
+def _is_table(path):
+    """True for a file whose suffix :func:`read_recording` supports."""
+    name = path.name.lower()
+    return path.is_file() and any(
+        name.endswith(s) and len(name) > len(s) for s in (*_CSV_SUFFIXES, *_PARQUET_SUFFIXES)
+    )
+
+
+def _files_of(source):
+    """Files named by a folder or a glob pattern, sorted by path.
+
+    Parameters
+    ----------
+    source : str or path-like
+        Folder (its CSV / Parquet files, not recursive) or glob pattern
+        (``**`` matches sub-folders).
+
+    Returns
+    -------
+    paths : list of pathlib.Path
+
+    Raises
+    ------
+    ValueError
+        If nothing matches.
+    """
+    text = str(source)
+    if Path(text).is_dir():
+        paths = sorted(p for p in Path(text).iterdir() if _is_table(p))
+        where = f"the folder {text!r} has no CSV or Parquet file"
+    else:
+        paths = sorted(Path(p) for p in glob.glob(text, recursive=True) if _is_table(Path(p)))
+        where = f"no CSV or Parquet file matches {text!r}"
+    if not paths:
+        raise ValueError(
+            f"{where} (suffixes {', '.join((*_CSV_SUFFIXES, *_PARQUET_SUFFIXES))})."
+        )
+    return paths
+
+
+def _check_pattern(pattern):
+    """Compile the file-name pattern; its named groups must be id names."""
+    if pattern is None:
+        return None
+    try:
+        regex = re.compile(pattern)
+    except (TypeError, re.error) as exc:
+        raise ValueError(
+            f"pattern must be a regular expression with named groups; got {pattern!r} "
+            f"({exc})."
+        ) from None
+    unknown = set(regex.groupindex) - set(ID_COLUMNS)
+    if not regex.groupindex or unknown:
+        raise ValueError(
+            f"pattern must have named groups among {list(ID_COLUMNS)}, e.g. "
+            r"'(?P<catheter>[^_]+)_(?P<setting>[^_]+)_(?P<run>\d+)'; got "
+            f"{pattern!r}" + (f" with the unknown group(s) {sorted(unknown)}." if unknown else ".")
+        )
+    return regex
+
+
+def _read_manifest(manifest):
+    """Read the manifest into a list of ``(path, per-file options)``.
+
+    Parameters
+    ----------
+    manifest : str, path-like or pandas.DataFrame
+        CSV file (paths relative to its folder) or table.
+
+    Returns
+    -------
+    jobs : list of (pathlib.Path, dict)
+
+    Raises
+    ------
+    ValueError
+        If the manifest has no ``path`` column or lists a file that does not
+        exist.
+    """
+    if isinstance(manifest, pd.DataFrame):
+        table, root, name = manifest, Path("."), "manifest"
+    else:
+        manifest = Path(manifest)
+        if not manifest.is_file():
+            raise ValueError(f"manifest: no such file {str(manifest)!r}.")
+        table, root, name = pd.read_csv(manifest), manifest.parent, manifest.name
+    if _MANIFEST_PATH not in table.columns:
+        raise ValueError(
+            f"{name}: the manifest needs a {_MANIFEST_PATH!r} column; columns: "
+            f"{list(table.columns)}."
+        )
+    unknown = [c for c in table.columns if c != _MANIFEST_PATH and c not in _OPTION_NAMES]
+    if unknown:
+        raise ValueError(
+            f"{name}: the manifest has the unknown column(s) {unknown}; besides "
+            f"{_MANIFEST_PATH!r} its columns must be reading options {list(_OPTION_NAMES)}."
+        )
+    jobs = []
+    for i, row in enumerate(table.to_dict("records")):
+        raw = row.pop(_MANIFEST_PATH)
+        if not isinstance(raw, str) or not raw.strip():
+            raise ValueError(f"{name}: row {i} has no path.")
+        path = Path(raw)
+        path = path if path.is_absolute() else root / path
+        if not path.is_file():
+            raise ValueError(
+                f"{name}: row {i} lists {raw!r}, which does not exist ({str(path)!r})."
+            )
+        options = {}
+        for key, value in row.items():
+            if isinstance(value, float) and np.isnan(value):
+                continue  # an empty cell: option not given for this file
+            if isinstance(value, (np.integer, np.floating)):
+                value = value.item()
+            if key == "n_sweep" and isinstance(value, float) and value.is_integer():
+                value = int(value)
+            options[key] = value
+        jobs.append((path, options))
+    if not jobs:
+        raise ValueError(f"{name}: the manifest lists no file.")
+    return jobs
+
+
+def read_recordings(
+    source=None,
+    *,
+    pattern=None,
+    manifest=None,
+    progress=True,
+    **read_kwargs,
+):
+    """Read many recording files into one long table.
+
+    Parameters
+    ----------
+    source : str or path-like, default=None
+        A folder (all its CSV / Parquet files, not recursive) or a glob
+        pattern such as ``"data/**/*.csv"``. Files are read in sorted path
+        order. Give ``source`` or ``manifest``.
+    pattern : str, default=None
+        Regular expression matched against the whole file name without its
+        suffix (:func:`re.fullmatch`), whose named groups ``catheter``,
+        ``setting`` and/or ``run`` give the ids of the file, e.g.
+        ``r"(?P<catheter>[^_]+)_(?P<setting>[^_]+)_run(?P<run>\\d+)"`` for
+        ``A_slow_run3.csv``. Ids are strings. Without ``pattern``, ids come
+        from the files themselves or ``read_kwargs`` (``run`` defaults to the
+        file name).
+    manifest : str, path-like or pandas.DataFrame, default=None
+        Instead of ``source``: a table (CSV file, or a DataFrame) with a
+        ``path`` column (relative to the manifest file's folder, or to the
+        working directory for a DataFrame) and optional columns ``catheter``,
+        ``setting``, ``run`` and other per-file options of
+        :func:`read_recording` (``n_sweep``, ``rate_hz``, ``phase``, ...).
+        An empty cell leaves that option unset for that file.
+    progress : bool, default=True
+        Show a tqdm progress bar over the files.
+    **read_kwargs
+        Options of :func:`skcath.io.read_recording` shared by every file
+        (``columns``, ``constants``, ``n_sweep``, ...).
+
+    Returns
+    -------
+    X : pandas.DataFrame
+        All runs one after the other, index ``range(n_rows)``.
+    y : ndarray of shape (n_rows, 3)
+        Tip in the base frame (mm).
+
+    Raises
+    ------
+    ValueError
+        If both or neither of ``source`` and ``manifest`` are given, both
+        ``pattern`` and ``manifest``; no file matches; a file name does not
+        match ``pattern`` (the message names it); an id is given by the
+        pattern or manifest and also in ``read_kwargs``; a manifest file does
+        not exist; two files hold the same (catheter, setting, run); or a
+        file cannot be read (the message names the file).
+
+    Examples
+    --------
+    ::
+
+        X, y = read_recordings(
+            "recordings/",
+            pattern=r"(?P<catheter>[^_]+)_(?P<setting>[^_]+)_(?P<run>\\d+)",
+            n_sweep=200,
+        )
+    """
+    if (source is None) == (manifest is None):
+        raise ValueError("Give either source (a folder or glob) or manifest, not both.")
+    if pattern is not None and manifest is not None:
+        raise ValueError("Give either pattern or manifest for the ids, not both.")
+    regex = _check_pattern(pattern)
+    unknown = sorted(set(read_kwargs) - set(_OPTION_NAMES))
+    if unknown:
+        raise TypeError(
+            f"read_recordings() got the unknown keyword argument(s) {unknown}; the "
+            f"reading options are {list(_OPTION_NAMES)}."
+        )
+
+    if manifest is not None:
+        jobs = _read_manifest(manifest)
+    else:
+        jobs = []
+        for path in _files_of(source):
+            options = {}
+            if regex is not None:
+                stem = _file_kind(path)[1]
+                match = regex.fullmatch(stem)
+                if match is None:
+                    raise ValueError(
+                        f"the file name {path.name!r} does not match pattern "
+                        f"{pattern!r} (matched against {stem!r})."
+                    )
+                options = {k: v for k, v in match.groupdict().items() if v is not None}
+            jobs.append((path, options))
+
+    frames, targets, owner = [], [], {}
+    for path, options in tqdm(jobs, disable=not progress, desc="reading", unit="file"):
+        clash = set(options) & set(read_kwargs)
+        if clash:
+            raise ValueError(
+                f"{path.name}: {sorted(clash)} given both for this file (pattern or "
+                "manifest) and as a keyword argument for all files; give one or the other."
+            )
+        X, y = read_recording(path, **options, **read_kwargs)
+        runs = X[[CATHETER, SETTING, RUN]].drop_duplicates()
+        for ids in runs.itertuples(index=False, name=None):
+            if ids in owner:
+                raise ValueError(
+                    f"the run (catheter, setting, run) = {ids!r} is in both "
+                    f"{owner[ids]!r} and {path.name!r}; run ids must be unique across files."
+                )
+            owner[ids] = path.name
+        frames.append(X)
+        targets.append(y)
+    X = pd.concat(frames, ignore_index=True)
+    return X, np.concatenate(targets, axis=0)

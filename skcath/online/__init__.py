@@ -1,0 +1,14 @@
+"""Streaming estimation and export: a fitted pipeline one motor sample at a time.
+
+:class:`OnlineEstimator` calibrates on one run's sweep and then estimates the
+tip from one motor sample per call, with numpy kernels on the step path;
+:func:`export` writes the residual's stepping network as ONNX or TorchScript;
+:class:`ShaftChangeDetector` raises an alarm when the shaft configuration has
+changed since the sweep, from the motor angles and torques alone.
+"""
+
+from ._change import ShaftChangeDetector
+from ._estimator import OnlineEstimator, calibrate_sweep
+from ._export import export, export_io
+
+__all__ = ["OnlineEstimator", "ShaftChangeDetector", "calibrate_sweep", "export", "export_io"]

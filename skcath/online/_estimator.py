@@ -1,0 +1,505 @@
+"""Streaming tip estimation: one motor sample in, one tip position out.
+
+:class:`OnlineEstimator` wraps a fitted pipeline (a backbone, optionally
+followed by a residual learner). ``start`` calibrates the backbone on one
+run's sweep and encodes the sweep context, exactly as ``Pipeline.predict``
+does for that run; ``step`` then estimates the tip from one motor sample at
+a time with numpy kernels (:mod:`skcath.online._fast`), carrying the
+recurrent state between calls.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from numbers import Real
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError
+from sklearn.pipeline import Pipeline
+from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
+from sklearn.utils.validation import check_is_fitted
+
+from .. import _format as fmt
+from .._validation import check_recordings, run_codes
+from ..backbones import PCCParams, PDLParams
+from ..backbones._backbone import _BaseBackbone, _calibrate_run
+from ..frames import sweep_frame
+from ..residuals import GRUResidual, MLPResidual, NoResidual
+from ..residuals._features import sweep_feature_names
+from ..residuals._modules import GRUResidualModule, MLPResidualModule
+from ._fast import GRUStep, MLPStep, PCCStep, PDLStep, fold_input_layer, fold_output_layer
+
+__all__ = ["OnlineEstimator", "calibrate_sweep"]
+
+_CHANNELS = ("q1", "q2", "tau1", "tau2")
+
+
+def check_online_pipeline(pipeline):
+    """The backbone and the residual step (or None) of a fitted pipeline.
+
+    Parameters
+    ----------
+    pipeline : sklearn.pipeline.Pipeline
+        ``Pipeline([("backbone", PCCBackbone() | PDLBackbone()), ("residual",
+        NoResidual() | MLPResidual() | GRUResidual())])``, fitted; the
+        residual step may be left out.
+
+    Returns
+    -------
+    backbone : PCCBackbone or PDLBackbone
+    residual : MLPResidual, GRUResidual or None
+        None for a backbone alone or followed by :class:`NoResidual`.
+    """
+    if not isinstance(pipeline, Pipeline):
+        raise TypeError(
+            "pipeline must be a fitted sklearn Pipeline of a backbone and a residual "
+            f"learner, got {type(pipeline).__name__}."
+        )
+    steps = [est for _, est in pipeline.steps if est is not None and est != "passthrough"]
+    if not 1 <= len(steps) <= 2 or not isinstance(steps[0], _BaseBackbone):
+        names = [type(est).__name__ for est in steps]
+        raise ValueError(
+            "pipeline must hold a backbone (PCCBackbone or PDLBackbone), optionally "
+            "followed by NoResidual, MLPResidual or GRUResidual; got the steps "
+            f"{names}."
+        )
+    backbone = steps[0]
+    check_is_fitted(backbone)
+    if len(steps) == 1:
+        return backbone, None
+    residual = steps[1]
+    if isinstance(residual, NoResidual):
+        check_is_fitted(residual)
+        return backbone, None
+    if not isinstance(residual, (GRUResidual, MLPResidual)):
+        raise ValueError(
+            "The last step of pipeline must be NoResidual, MLPResidual or GRUResidual; "
+            f"got {type(residual).__name__}."
+        )
+    if not getattr(residual, "initialized_", False) or not hasattr(residual, "sigma_e_"):
+        raise NotFittedError(
+            f"The {type(residual).__name__} of pipeline is not fitted yet; fit the "
+            "pipeline before streaming."
+        )
+    if not isinstance(residual.module_, (GRUResidualModule, MLPResidualModule)):
+        raise ValueError(
+            f"{type(residual).__name__} has a custom module "
+            f"({type(residual.module_).__name__}); streaming supports GRUResidualModule "
+            "and MLPResidualModule."
+        )
+    return backbone, residual
+
+
+def _check_sweep(sweep):
+    """Checked sweep rows of exactly one run."""
+    X, _ = check_recordings(sweep)
+    _, runs = run_codes(X)
+    if len(runs) != 1:
+        raise ValueError(
+            f"sweep must hold the sweep rows of exactly one run; got {len(runs)} runs "
+            f"({', '.join(map(repr, list(runs)[:5]))})."
+        )
+    n_motion = int((X[fmt.PHASE] != fmt.SWEEP).sum())
+    if n_motion:
+        raise ValueError(
+            f"sweep must hold only rows with {fmt.PHASE!r} == {fmt.SWEEP!r}; got "
+            f"{n_motion} {fmt.MOTION!r} row(s) of run {runs[0]!r}. Pass "
+            f"X[X[{fmt.PHASE!r}] == {fmt.SWEEP!r}]."
+        )
+    return X, runs[0]
+
+
+def calibrate_sweep(backbone, sweep):
+    """Calibrate a backbone on the sweep rows of one run, as its ``predict`` does.
+
+    Parameters
+    ----------
+    backbone : PCCBackbone or PDLBackbone
+        A fitted backbone (its sweep and solver parameters are used).
+    sweep : pandas.DataFrame
+        The sweep rows of one run in the long format.
+
+    Returns
+    -------
+    params : PCCParams or PDLParams
+        Calibrated parameters of the run.
+    nominal : ndarray of shape (n_sweep, 3)
+        Nominal tip of every sweep row (mm).
+    """
+    check_is_fitted(backbone)
+    X, run = _check_sweep(sweep)
+    return _calibrate(backbone, X, run)
+
+
+def _calibrate(backbone, X, run):
+    """:func:`calibrate_sweep` on checked sweep rows ``X`` of run ``run``."""
+    q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
+    ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy()
+    # the backbone's own per-run calibration, as in its predict
+    nominal, params, _ = _calibrate_run(backbone, run, q, ref, np.ones(len(X), dtype=bool))
+    return params, nominal
+
+
+def _neutral_angles(params):
+    """Neutral motor angles (deg) of a calibration."""
+    return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
+
+
+def _numpy(t):
+    return t.detach().cpu().to(torch.float64).numpy()
+
+
+def _context(residual, X, dtype):
+    """Context ``z`` of the run, or None without context.
+
+    The encoder runs in torch (once per run), on a float64 copy of its
+    weights when ``dtype`` is float64 and in float32 otherwise.
+    """
+    if not residual.use_context:
+        return None
+    names = list(sweep_feature_names(residual.use_torque))
+    values = X[names].to_numpy(dtype=np.float64)[None]
+    sweep = SimpleNamespace(values=values, lengths=np.array([values.shape[1]]))
+    encoder = residual.module_.encoder
+    torch_dtype = torch.float64 if np.dtype(dtype) == np.float64 else torch.float32
+    if next(encoder.parameters()).dtype != torch_dtype:
+        encoder = copy.deepcopy(encoder).to(torch_dtype)
+    s, length = residual._context_input(sweep, np.dtype(dtype))
+    with torch.no_grad():
+        z = encoder(torch.from_numpy(s), torch.from_numpy(length))
+    return _numpy(z[0])
+
+
+def residual_kernel(residual, rotation, z, dtype):
+    """Numpy stepping kernel of a fitted residual learner for one run.
+
+    Parameters
+    ----------
+    residual : MLPResidual or GRUResidual
+        Fitted learner.
+    rotation : ndarray of shape (3, 3) or None
+        ``R_SB`` of the run (``frame="sweep"``), or None.
+    z : ndarray or None
+        Context of the run.
+    dtype : numpy dtype
+        Arithmetic precision of the kernel.
+
+    Returns
+    -------
+    kernel : GRUStep or MLPStep
+    """
+    module = residual.module_
+    scaler = residual.x_scaler_
+    if isinstance(module, GRUResidualModule):
+        gru = module.gru
+        layers = []
+        for k in range(gru.num_layers):
+            W_ih = _numpy(getattr(gru, f"weight_ih_l{k}"))
+            W_hh = _numpy(getattr(gru, f"weight_hh_l{k}"))
+            b_ih = _numpy(getattr(gru, f"bias_ih_l{k}"))
+            b_hh = _numpy(getattr(gru, f"bias_hh_l{k}"))
+            if k == 0:
+                W_ih, b_ih = fold_input_layer(W_ih, b_ih, scaler.mean, scaler.scale, rotation, z)
+            layers.append((W_ih, W_hh, b_ih, b_hh))
+        linears = [m for m in module.head if isinstance(m, torch.nn.Linear)]
+        head = [(_numpy(m.weight), _numpy(m.bias)) for m in linears]
+        head[-1] = fold_output_layer(*head[-1], residual.sigma_e_, rotation)
+        return GRUStep(layers, head, dtype)
+    linears = [m for m in module.mlp if isinstance(m, torch.nn.Linear)]
+    layers = [(_numpy(m.weight), _numpy(m.bias)) for m in linears]
+    layers[0] = fold_input_layer(*layers[0], scaler.mean, scaler.scale, rotation, z)
+    layers[-1] = fold_output_layer(*layers[-1], residual.sigma_e_, rotation)
+    return MLPStep(layers, dtype)
+
+
+class OnlineEstimator(BaseEstimator):
+    """Streaming tip estimator: one motor sample in, one tip position out.
+
+    Wraps a fitted pipeline of a backbone and a residual learner. :meth:`start`
+    calibrates the backbone on one run's sweep and encodes the sweep context
+    once; :meth:`step` then returns the tip position for one motor sample
+    ``(q1, q2, tau1, tau2)``, carrying the recurrent state from call to call.
+    Stepping through the motion samples of a run after ``start`` on its sweep
+    reproduces ``pipeline.predict`` on the motion rows of that run (see
+    *Notes* for the tolerance).
+
+    Parameters
+    ----------
+    pipeline : sklearn.pipeline.Pipeline
+        Fitted ``Pipeline([("backbone", PCCBackbone() | PDLBackbone()),
+        ("residual", NoResidual() | MLPResidual() | GRUResidual())])``; the
+        residual step may be left out. It is read, never modified.
+    dtype : {"float64", "float32"}, default="float64"
+        Precision of the residual network's arithmetic on the step path.
+        ``"float64"`` evaluates the fitted (float32) weights without
+        rounding; ``"float32"`` is faster for large networks and rounds as
+        the trained network does. The backbone is always evaluated in
+        float64.
+    on_invalid : {"raise", "hold"}, default="raise"
+        What :meth:`step` does with a sample that has a non-finite value
+        (NaN, inf) or motor angles out of range (see ``q_margin``).
+        ``"raise"``: raise ``ValueError`` naming the channel and leave the
+        state unchanged, so that the caller may skip the sample and go on.
+        ``"hold"``: replace each non-finite channel, and both motor angles
+        if they are out of range, by its last accepted value (the last
+        sweep sample before the first step), step with that, and count the
+        sample in ``n_held_``. A NaN never reaches the tip estimate.
+    q_margin : float or None, default=0.25
+        Motor angles are out of range when their distance from the neutral
+        motor angles of the sweep exceeds ``1 + q_margin`` times the sweep
+        amplitude, the largest such distance among the sweep samples (the
+        backbone is calibrated within the amplitude and extrapolates
+        beyond). None accepts any finite angle.
+    detector : object or None, default=None
+        Optional change detector with ``start(sweep)`` and
+        ``step(q1, q2, tau1, tau2) -> bool``. It is started by :meth:`start`
+        with the same sweep and stepped by :meth:`step` with the same
+        (accepted) sample; its last answer is ``shaft_changed_``.
+
+    Attributes
+    ----------
+    run_ : str
+        Run id of the sweep given to :meth:`start`.
+    backbone_params_ : PCCParams or PDLParams
+        The backbone's calibration on the sweep.
+    rotation_ : ndarray of shape (3, 3) or None
+        ``R_SB`` of the sweep (residual learners with ``frame="sweep"``), else None.
+    context_ : ndarray of shape (context_size,) or None
+        The sweep context ``z``, or None (no residual or no context).
+    q_neutral_ : ndarray of shape (2,)
+        Neutral motor angles of the sweep (deg), as found by the backbone's
+        calibration.
+    q_amplitude_ : float
+        Sweep amplitude: the largest distance of a sweep sample's motor
+        angles from ``q_neutral_`` (deg).
+    q_limit_ : float
+        Largest accepted distance of the motor angles from ``q_neutral_``
+        (deg); inf when ``q_margin`` is None.
+    n_steps_ : int
+        Samples stepped since :meth:`start` or :meth:`reset`.
+    n_held_ : int
+        Of those, samples that had a value replaced (``on_invalid="hold"``).
+    nominal_ : ndarray of shape (3,)
+        Nominal (backbone) tip of the last step (mm).
+    shaft_changed_ : bool
+        Last answer of ``detector`` (only with a detector).
+
+    See Also
+    --------
+    skcath.online.export : the residual's stepping network as ONNX or TorchScript.
+
+    Notes
+    -----
+    The backbone's evaluation and the step features are computed as in
+    ``predict``. With ``dtype="float64"`` the step matches ``predict`` of the
+    same pipeline run in float64 (``residual.module_.double()``) to 1e-9 mm;
+    against the float32 ``predict`` (as fitted) the difference is that
+    prediction's own float32 rounding, about 1e-6 mm for the default GRU
+    (``docs/deploying.rst`` gives the measured values; the tests check
+    1e-4 mm). For :class:`NoResidual` and the backbone alone the match is
+    exact to 1e-9 mm. The first step after :meth:`start` or :meth:`reset`
+    takes its motor differences from the last sweep sample, as ``predict``
+    does for the first motion row.
+
+    Examples
+    --------
+    >>> est = OnlineEstimator(pipe).start(X_run[X_run["phase"] == "sweep"])  # doctest: +SKIP
+    >>> tip = est.step(q1, q2, tau1, tau2)  # (3,) mm  # doctest: +SKIP
+    """
+
+    _parameter_constraints: dict = {
+        "pipeline": [HasMethods(["predict"])],
+        "dtype": [StrOptions({"float64", "float32"})],
+        "on_invalid": [StrOptions({"raise", "hold"})],
+        "q_margin": [Interval(Real, 0, None, closed="left"), None],
+        "detector": [HasMethods(["start", "step"]), None],
+    }
+
+    def __init__(self, pipeline, *, dtype="float64", on_invalid="raise", q_margin=0.25,
+                 detector=None):
+        self.pipeline = pipeline
+        self.dtype = dtype
+        self.on_invalid = on_invalid
+        self.q_margin = q_margin
+        self.detector = detector
+
+    # ------------------------------------------------------------------ set-up
+    def start(self, sweep):
+        """Calibrate on the sweep of one run and encode its context.
+
+        Parameters
+        ----------
+        sweep : pandas.DataFrame
+            The sweep rows (``phase == "sweep"``) of one run in the long
+            format, with the reference tip ``ref_x, ref_y, ref_z`` (mm).
+
+        Returns
+        -------
+        self : OnlineEstimator
+            Ready for :meth:`step`, with a zero recurrent state.
+        """
+        self._started = False  # until this start has succeeded
+        self._validate_params()
+        backbone, residual = check_online_pipeline(self.pipeline)
+        X, run = _check_sweep(sweep)
+        params, nominal = _calibrate(backbone, X, run)
+        if isinstance(params, PCCParams):
+            self._backbone = PCCStep(params)
+        elif isinstance(params, PDLParams):
+            self._backbone = PDLStep(params)
+        else:  # pragma: no cover - every backbone returns one of the two
+            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
+        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
+        tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
+        self.run_ = run
+        self.backbone_params_ = params
+        self.rotation_ = None
+        self.context_ = None
+        self._kernel = None
+        self._clip = math.inf
+        if residual is not None:
+            if residual.frame == "sweep":
+                self.rotation_ = sweep_frame(q, nominal, run=run)
+            self.context_ = _context(residual, X, self.dtype)
+            self._kernel = residual_kernel(residual, self.rotation_, self.context_, self.dtype)
+            self._use_torque = residual.use_torque
+            if residual.clip is not None:
+                self._clip = float(residual.clip)
+        self.q_neutral_ = _neutral_angles(params)
+        self.q_amplitude_ = float(np.hypot(*(q - self.q_neutral_).T).max())
+        self.q_limit_ = (
+            math.inf if self.q_margin is None else (1.0 + self.q_margin) * self.q_amplitude_
+        )
+        self._last_sweep = (float(q[-1, 0]), float(q[-1, 1]), float(tau[-1, 0]), float(tau[-1, 1]))
+        self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
+        self._limit2 = self.q_limit_ * self.q_limit_
+        self.nominal_ = np.zeros(3)
+        if self.detector is not None:
+            self.detector.start(X)
+            self.shaft_changed_ = False
+        self._started = True
+        return self.reset()
+
+    def reset(self):
+        """Start a new motion sequence: zero recurrent state, as right after :meth:`start`.
+
+        The first step after ``reset`` takes its motor differences from the
+        last sweep sample, as ``predict`` does for the first motion row.
+        The detector, if any, is not reset.
+
+        Returns
+        -------
+        self : OnlineEstimator
+        """
+        self._check_started()
+        self._last = list(self._last_sweep)
+        if self._kernel is not None:
+            self._kernel.reset()
+        self.n_steps_ = 0
+        self.n_held_ = 0
+        return self
+
+    def _check_started(self):
+        if not self._started:
+            raise NotFittedError(
+                "This OnlineEstimator has not been started; call start(sweep) with the "
+                "sweep rows of the run before step or reset."
+            )
+
+    # ------------------------------------------------------------------ step
+    _started = False
+
+    def _accept(self, sample):
+        """The sample to step with after the bad-input policy (a list of 4 floats)."""
+        bad = [name for name, v in zip(_CHANNELS, sample) if not math.isfinite(v)]
+        if not bad:
+            distance = math.hypot(sample[0] - self._qn[0], sample[1] - self._qn[1])
+            if distance * distance <= self._limit2:
+                return sample
+        if self.on_invalid == "raise":
+            if bad:
+                raise ValueError(
+                    f"step got a non-finite value for {', '.join(bad)} "
+                    f"(q1={sample[0]!r} deg, q2={sample[1]!r} deg, tau1={sample[2]!r}, "
+                    f"tau2={sample[3]!r}); pass finite samples or use on_invalid='hold'."
+                )
+            raise ValueError(
+                f"step got motor angles out of range: (q1, q2) = ({sample[0]!r}, "
+                f"{sample[1]!r}) deg lies {distance:.1f} deg from the neutral angles "
+                f"({self._qn[0]:.2f}, {self._qn[1]:.2f}) deg of the sweep; at most "
+                f"{self.q_limit_:.1f} deg (1 + q_margin times the sweep amplitude) is "
+                "accepted. Increase q_margin or use on_invalid='hold'."
+            )
+        held = list(sample)
+        for k, name in enumerate(_CHANNELS):
+            if name in bad:
+                held[k] = self._last[k]
+        d1, d2 = held[0] - self._qn[0], held[1] - self._qn[1]
+        if not d1 * d1 + d2 * d2 <= self._limit2:
+            held[0], held[1] = self._last[0], self._last[1]
+        self.n_held_ += 1
+        return held
+
+    def step(self, q1, q2, tau1, tau2, *, out=None):
+        """Tip position for one motor sample.
+
+        Parameters
+        ----------
+        q1, q2 : float
+            Motor angles (deg).
+        tau1, tau2 : float
+            Drive torques (N mm in the simulator; the units of the training data).
+        out : ndarray of shape (3,), dtype float64, optional
+            Written in place and returned; without it a new array is
+            returned. Passing ``out`` keeps the loop free of allocations.
+
+        Returns
+        -------
+        tip : ndarray of shape (3,)
+            Estimated tip position in the base frame (mm).
+        """
+        if not self._started:
+            self._check_started()
+        try:
+            q1, q2, tau1, tau2 = float(q1), float(q2), float(tau1), float(tau2)
+        except (TypeError, ValueError):
+            raise TypeError(
+                "step takes four numbers (q1, q2 in deg, tau1, tau2); got "
+                f"{q1!r}, {q2!r}, {tau1!r}, {tau2!r}."
+            ) from None
+        d1, d2 = q1 - self._qn[0], q2 - self._qn[1]
+        # NaN or inf in any channel makes the sum NaN, which fails the test
+        if not (d1 - d1 + d2 - d2 + tau1 - tau1 + tau2 - tau2 == 0.0
+                and d1 * d1 + d2 * d2 <= self._limit2):
+            q1, q2, tau1, tau2 = self._accept([q1, q2, tau1, tau2])
+        last = self._last
+        dq1, dq2 = q1 - last[0], q2 - last[1]
+        last[0], last[1], last[2], last[3] = q1, q2, tau1, tau2
+        bx, by, bz = self._backbone(q1, q2)
+        nominal = self.nominal_
+        nominal[0], nominal[1], nominal[2] = bx, by, bz
+        if out is None:
+            out = np.empty(3)
+        kernel = self._kernel
+        if kernel is None:
+            out[0], out[1], out[2] = bx, by, bz
+        else:
+            x = kernel.input
+            if self._use_torque:
+                x[:] = (q1, q2, dq1, dq2, tau1, tau2, bx, by, bz)
+            else:
+                x[:] = (q1, q2, dq1, dq2, bx, by, bz)
+            kernel()
+            e0, e1, e2 = kernel.output.tolist()
+            c = self._clip
+            out[0] = min(max(e0, -c), c) + bx
+            out[1] = min(max(e1, -c), c) + by
+            out[2] = min(max(e2, -c), c) + bz
+        self.n_steps_ += 1
+        if self.detector is not None:
+            self.shaft_changed_ = bool(self.detector.step(q1, q2, tau1, tau2))
+        return out

@@ -1,0 +1,224 @@
+"""Export of the residual's stepping network as ONNX or TorchScript.
+
+The exported graph is one step of the residual learner of a fitted pipeline,
+from the raw step features to the clipped residual in the base frame. The
+normalisation statistics, ``sigma_e`` and the clip bound are constants of the
+graph; what depends on the run (the sweep frame ``R_SB`` and the context
+``z``, both computed once per run by :meth:`OnlineEstimator.start`) and the
+recurrent state are inputs. The backbone is not part of the graph: evaluate
+it (e.g. with ``OnlineEstimator``'s calibration, ``backbone_params_``) and
+add its nominal tip to the residual.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+
+import torch
+from torch import nn
+
+from ..residuals._modules import GRUResidualModule
+from ._estimator import check_online_pipeline
+
+__all__ = ["export", "export_io"]
+
+FORMATS = ("onnx", "torchscript")
+
+
+class _StepGraph(nn.Module):
+    """One step of a fitted residual learner on raw features (see :func:`export`)."""
+
+    def __init__(self, residual, dtype):
+        super().__init__()
+        module = residual.module_
+        self.recurrent = isinstance(module, GRUResidualModule)
+        self.rotate = residual.frame == "sweep"
+        self.use_context = residual.use_context
+        if self.recurrent:
+            gru = module.gru
+            cells = []
+            for k in range(gru.num_layers):
+                size = gru.input_size if k == 0 else gru.hidden_size
+                cell = nn.GRUCell(size, gru.hidden_size)
+                with torch.no_grad():
+                    cell.weight_ih.copy_(getattr(gru, f"weight_ih_l{k}"))
+                    cell.weight_hh.copy_(getattr(gru, f"weight_hh_l{k}"))
+                    cell.bias_ih.copy_(getattr(gru, f"bias_ih_l{k}"))
+                    cell.bias_hh.copy_(getattr(gru, f"bias_hh_l{k}"))
+                cells.append(cell)
+            self.cells = nn.ModuleList(cells)
+            self.net = copy.deepcopy(module.head)
+        else:
+            self.cells = nn.ModuleList()
+            self.net = copy.deepcopy(module.mlp)
+        as_tensor = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
+        self.register_buffer("mean", as_tensor(residual.x_scaler_.mean))
+        self.register_buffer("scale", as_tensor(residual.x_scaler_.scale))
+        self.register_buffer("sigma_e", as_tensor(residual.sigma_e_))
+        clip = float("inf") if residual.clip is None else float(residual.clip)
+        self.register_buffer("clip", as_tensor(clip))
+        self.to(dtype).eval()
+
+    def _features(self, features, rotation):
+        if not self.rotate:
+            return (features - self.mean) / self.scale
+        b = features[:, -3:] @ rotation.transpose(0, 1)  # R_SB b, as rows
+        x = torch.cat([features[:, :-3], b], dim=1)
+        return (x - self.mean) / self.scale
+
+    def _residual(self, f, rotation):
+        e = f * self.sigma_e
+        if self.rotate:
+            e = e @ rotation  # R_SB^T e, as rows
+        return torch.maximum(torch.minimum(e, self.clip), -self.clip)
+
+    def step(self, features, rotation, context, hidden):
+        v = self._features(features, rotation)
+        if self.use_context:
+            v = torch.cat([v, context], dim=1)
+        if not self.recurrent:
+            return self._residual(self.net(v), rotation), hidden
+        states = []
+        for k, cell in enumerate(self.cells):
+            v = cell(v, hidden[k])
+            states.append(v)
+        return self._residual(self.net(v), rotation), torch.stack(states)
+
+
+def _wrapper(graph, names):
+    """A module whose ``forward`` takes exactly the inputs in ``names``."""
+    has_rotation = "rotation" in names
+    has_context = "context" in names
+    has_hidden = "hidden" in names
+
+    class Step(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.graph = graph
+
+        def forward(self, *inputs):
+            values = dict(zip(names, inputs))
+            out = self.graph.step(
+                values["features"],
+                values["rotation"] if has_rotation else None,
+                values["context"] if has_context else None,
+                values["hidden"] if has_hidden else None,
+            )
+            return out if has_hidden else out[0]
+
+    return Step()
+
+
+def export_io(pipeline):
+    """Names and shapes of the inputs and outputs of the exported step graph.
+
+    Parameters
+    ----------
+    pipeline : sklearn.pipeline.Pipeline
+        Fitted pipeline with an :class:`~skcath.residuals.MLPResidual` or
+        :class:`~skcath.residuals.GRUResidual` as last step.
+
+    Returns
+    -------
+    inputs : dict
+        Name -> shape, in the order the graph takes them: ``features``
+        ``(1, n_features)``; ``rotation`` ``(3, 3)`` (``frame="sweep"``
+        only); ``context`` ``(1, context_size)`` (``use_context=True`` only);
+        ``hidden`` ``(num_layers, 1, hidden_size)`` (GRU only).
+    outputs : dict
+        ``residual`` ``(1, 3)``, and ``hidden_out`` for the GRU.
+    """
+    _, residual = check_online_pipeline(pipeline)
+    if residual is None:
+        raise ValueError(
+            "pipeline has no learned residual (a backbone alone or with NoResidual): "
+            "there is no network to export; the backbone runs as is."
+        )
+    module = residual.module_
+    n_features = residual.x_scaler_.mean.shape[0]
+    inputs = {"features": (1, n_features)}
+    if residual.frame == "sweep":
+        inputs["rotation"] = (3, 3)
+    if residual.use_context:
+        inputs["context"] = (1, module.encoder.out.out_features)
+    outputs = {"residual": (1, 3)}
+    if isinstance(module, GRUResidualModule):
+        shape = (module.gru.num_layers, 1, module.gru.hidden_size)
+        inputs["hidden"] = shape
+        outputs["hidden_out"] = shape
+    return inputs, outputs
+
+
+def export(pipeline, path, format="onnx", *, dtype="float32"):
+    """Write one step of the pipeline's residual network to a file.
+
+    The graph maps the raw step features of one motor sample to the
+    residual (mm, base frame, clipped), for a GRU also the hidden state to
+    the next one:
+
+    ``(features, [rotation], [context], [hidden]) -> (residual, [hidden_out])``
+
+    ``features`` are ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]``
+    (without the torques if the learner has ``use_torque=False``): motor
+    angles (deg), their differences to the previous sample (deg; for the
+    first motion sample, to the last sweep sample), drive torques and the
+    backbone's nominal tip in the base frame (mm). ``rotation`` is the run's
+    ``R_SB`` and ``context`` its sweep context ``z``
+    (``OnlineEstimator.rotation_`` and ``.context_`` after ``start``);
+    ``hidden`` starts at zeros for every motion sequence. The tip is the
+    nominal tip plus ``residual``. :func:`export_io` gives the shapes.
+
+    Parameters
+    ----------
+    pipeline : sklearn.pipeline.Pipeline
+        Fitted pipeline whose last step is an
+        :class:`~skcath.residuals.MLPResidual` or
+        :class:`~skcath.residuals.GRUResidual`.
+    path : str or os.PathLike
+        File to write.
+    format : {"onnx", "torchscript"}, default="onnx"
+        ONNX (opset 17, PyTorch's TorchScript-based exporter; the GRU is
+        written as elementary ``MatMul``/``Sigmoid``/``Tanh`` operations of a
+        ``GRUCell``, not as an ONNX ``GRU`` node) or a TorchScript archive for
+        ``torch.jit.load``.
+    dtype : {"float32", "float64"}, default="float32"
+        Precision of the weights and of every input and output.
+
+    Returns
+    -------
+    path : str
+        The file written.
+    """
+    if format not in FORMATS:
+        raise ValueError(f"format must be one of {list(FORMATS)}; got {format!r}.")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    inputs, outputs = export_io(pipeline)
+    _, residual = check_online_pipeline(pipeline)
+    torch_dtype = getattr(torch, dtype)
+    graph = _StepGraph(residual, torch_dtype)
+    names = list(inputs)
+    model = _wrapper(graph, names).eval()
+    examples = []
+    for name, shape in inputs.items():
+        example = torch.zeros(shape, dtype=torch_dtype)
+        if name == "rotation":
+            example = torch.eye(3, dtype=torch_dtype)
+        examples.append(example)
+    path = os.fspath(path)
+    with torch.no_grad():
+        if format == "torchscript":
+            traced = torch.jit.trace(model, tuple(examples))
+            traced.save(path)
+        else:
+            torch.onnx.export(
+                model,
+                tuple(examples),
+                path,
+                input_names=names,
+                output_names=list(outputs),
+                opset_version=17,
+                dynamo=False,
+            )
+    return path

@@ -1,0 +1,467 @@
+"""Reduced calibration budget: tip error against the size of each run's sweep.
+
+:func:`run_calibration_budget` calibrates the backbones, and applies a
+PDL+GRU residual trained on full sweeps, on sweeps reduced by
+:func:`skcath.sweep.reduce_sweep` to fewer rays or to every ``stride``-th
+sample, and scores every budget on the unchanged motion rows;
+:func:`format_budget_report`, :func:`write_budget_results` and
+:func:`plot_calibration_budget` print, save and draw the result.
+``python -m skcath calibration-budget`` runs them all; see
+``docs/calibration_budget.rst``.
+"""
+
+from __future__ import annotations
+
+import time
+from numbers import Integral
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from joblib import delayed
+from sklearn.frozen import FrozenEstimator
+from sklearn.utils import Bunch
+
+from .. import _format as fmt
+from .._validation import check_recordings
+from ..backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
+from ..metrics import per_run_rmse
+from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
+from ..model_selection._split import _exclusion_set
+from ..sweep import reduce_sweep
+from ._protocol import _LEARNER_COLUMNS, _make_learner, _run_tasks
+from ._schedule import get_schedule
+
+__all__ = [
+    "BUDGET_FILES",
+    "BUDGET_METHODS",
+    "format_budget_report",
+    "plot_calibration_budget",
+    "run_calibration_budget",
+    "write_budget_results",
+]
+
+#: Methods scored at every budget: the two backbones and the GRU residual on PDL.
+BUDGET_METHODS = ("PCC", "PDL", "PDL+GRU")
+
+#: Learned method of the experiment (a key of :data:`~skcath.protocol.VARIANTS`).
+_VARIANT = "PDL+GRU"
+
+#: File names written by :func:`write_budget_results`.
+BUDGET_FILES = {
+    "summary": "calibration_budget.csv",
+    "run_rmse": "calibration_budget_runs.csv",
+    "figure": "calibration_budget.png",
+}
+
+
+def _check_levels(values, name, low, high=None):
+    """Validated tuple of distinct integers in ``[low, high]``, in the given order."""
+    values = (values,) if isinstance(values, Integral) else tuple(values)
+    bad = [
+        v for v in values
+        if isinstance(v, bool) or not isinstance(v, Integral) or v < low or (high is not None and v > high)
+    ]
+    if not values or bad:
+        upper = "" if high is None else f" to {high}"
+        raise ValueError(f"{name} must hold integers from {low}{upper}; got {values!r}.")
+    return tuple(dict.fromkeys(int(v) for v in values))
+
+
+def _budgets(rays, strides, n_rays_swept):
+    """(n_rays, stride) pairs: the full sweep, fewer rays, then sparser samples."""
+    pairs = [(n_rays_swept, 1)]
+    pairs += [(n, 1) for n in sorted(rays, reverse=True)]
+    pairs += [(n_rays_swept, s) for s in sorted(strides)]
+    return list(dict.fromkeys(pairs))
+
+
+def _finetune_budgets(key, params, pretrained, X_train, y_train, X_tests):
+    """Fine-tune a pretrained model on full sweeps; predict the test runs of every budget."""
+    start = time.perf_counter()
+    params = {**params, "pretrained": FrozenEstimator(pretrained)}
+    model = _make_learner(_VARIANT, key["seed"], params).fit(X_train, y_train)
+    return key, [model.predict(X) for X in X_tests], time.perf_counter() - start
+
+
+def _pretrain(key, params, X_train, y_train):
+    """Pretrain on the other catheters (full sweeps)."""
+    start = time.perf_counter()
+    model = _make_learner(_VARIANT, key["seed"], params).fit(X_train, y_train)
+    return key, model, time.perf_counter() - start
+
+
+def _sweep_size(X, stride):
+    """Sweep samples and sweep duration (s) of every run of ``X``.
+
+    The duration counts ``stride`` sample periods per kept sample, the
+    period being the median time step of the motion rows of the run.
+    """
+    sweep = X[fmt.PHASE].to_numpy() == fmt.SWEEP
+    runs = X[fmt.RUN].to_numpy()
+    n = pd.Series(sweep).groupby(runs, sort=False).sum()
+    motion = X.loc[~sweep, [fmt.RUN, fmt.TIME]]
+    period = motion.groupby(fmt.RUN, observed=True, sort=False)[fmt.TIME].apply(
+        lambda t: float(np.median(np.diff(t.to_numpy()))) if len(t) > 1 else np.nan
+    )
+    period.index = period.index.astype(str)
+    n.index = n.index.astype(str)
+    return n.astype(int), n * stride * period.reindex(n.index)
+
+
+def run_calibration_budget(
+    X,
+    y,
+    *,
+    rays=(8, 6, 4, 3),
+    strides=(5, 20, 50),
+    n_rays_swept=8,
+    learned=True,
+    schedule="quick",
+    catheters=None,
+    exclude_settings=None,
+    n_jobs=1,
+    verbose=False,
+):
+    """Tip error of the backbones and of PDL+GRU against the calibration budget.
+
+    Budgets are the full sweep (``n_rays_swept`` rays, every sample), each
+    number of rays in ``rays`` (every sample) and each stride in ``strides``
+    (all rays), made by :func:`skcath.sweep.reduce_sweep` on every evaluated
+    run. For each budget, PCC and PDL are calibrated on the reduced sweep of
+    every run and scored on its motion rows, which no budget changes.
+
+    With ``learned``, PDL+GRU is trained as in :func:`run_protocol` under
+    ``schedule``, on full sweeps only: for every evaluated catheter and seed
+    a model is pretrained on the other catheters and fine-tuned, for every
+    fold of a setting-held-out split within the catheter, on the fold's
+    training runs. Each fold's test runs are then predicted once per budget:
+    their PDL backbone is calibrated on the reduced sweep, and the context
+    encoder and the sweep frame read the reduced sweep. Two-ray budgets are
+    refused, since neither the backbones nor the sweep frame can use them.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format (``docs/data_format.rst``); every run
+        starts with a sweep of ``n_rays_swept`` evenly spaced rays. With
+        ``learned``, at least two catheters.
+    y : array-like of shape (n_samples, 3)
+        Measured tip positions in the base frame (mm).
+    rays : iterable of int, default=(8, 6, 4, 3)
+        Numbers of rays kept, from 3 to ``n_rays_swept``.
+    strides : iterable of int, default=(5, 20, 50)
+        Strides of the sweep samples kept, with all rays (positive).
+    n_rays_swept : int, default=8
+        Rays of the recorded sweeps.
+    learned : bool, default=True
+        Also train and score PDL+GRU; False scores the backbones only.
+    schedule : {"quick", "full"} or Schedule, default="quick"
+        Seeds, folds, epochs and model size of PDL+GRU (:class:`Schedule`).
+    catheters : iterable of str, default=None
+        Catheters evaluated; None evaluates all. The others still serve for
+        pretraining.
+    exclude_settings : str or iterable of str, default=None
+        Settings never evaluated (the straight reference ``S00`` of the
+        built-in benchmark, in the protocol); still used for training.
+    n_jobs : int, default=1
+        Runs calibrated and models trained in parallel (joblib); each model
+        uses one torch thread.
+    verbose : bool, default=False
+        Show progress bars on standard error.
+
+    Returns
+    -------
+    result : sklearn.utils.Bunch
+        ``summary``: DataFrame with one row per budget and columns
+        ``n_rays``, ``stride``, ``sweep_samples`` and ``sweep_s`` (median
+        per run; sweep duration in s), then the mean per-run RMSE (mm) of
+        each method in :data:`BUDGET_METHODS` (PDL+GRU averaged over seeds;
+        absent without ``learned``). ``run_rmse``: one row per budget,
+        method, seed and evaluated run (``n_rays``, ``stride``, ``method``,
+        ``seed``, ``catheter``, ``setting``, ``run``, ``rmse_mm``; ``seed``
+        is -1 for the backbones). ``schedule`` (None without ``learned``),
+        ``catheters``, ``exclude_settings`` and ``elapsed`` (wall time, s).
+
+    Raises
+    ------
+    ValueError
+        On malformed recordings, on ``rays`` outside ``[3, n_rays_swept]``,
+        on non-positive strides, on unknown catheters, or when a sweep's rays
+        cannot be found (the message names the run).
+    """
+    start = time.perf_counter()
+    if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 3:
+        raise ValueError(f"n_rays_swept must be an integer of at least 3; got {n_rays_swept!r}.")
+    rays = _check_levels(rays, "rays", 3, int(n_rays_swept))
+    strides = _check_levels(strides, "strides", 1)
+    budgets = _budgets(rays, strides, int(n_rays_swept))
+    spacing = 360.0 / n_rays_swept
+    exclude = tuple(sorted(_exclusion_set(exclude_settings)))
+    X, y = check_recordings(X, y)
+    if y is None:
+        raise ValueError("y (the measured tip positions, mm) is required to score the budgets.")
+    X = X.reset_index(drop=True)
+    y = np.asarray(y, dtype=float)
+    catheter_ids = X[fmt.CATHETER].astype(str).to_numpy()
+    available = list(pd.unique(catheter_ids))
+    if catheters is None:
+        evaluated_catheters = available
+    else:
+        evaluated_catheters = [str(c) for c in ([catheters] if isinstance(catheters, str) else catheters)]
+        unknown = sorted(set(evaluated_catheters) - set(available))
+        if unknown or not evaluated_catheters:
+            raise ValueError(
+                f"catheters must name catheters of X's 'catheter' column {available}; "
+                f"got {evaluated_catheters!r}."
+            )
+    evaluated = np.isin(catheter_ids, evaluated_catheters) & ~np.isin(
+        X[fmt.SETTING].astype(str).to_numpy(), exclude
+    )
+    if not evaluated.any():
+        raise ValueError(
+            f"no run is left to evaluate: catheters {evaluated_catheters} have only the "
+            f"excluded settings {list(exclude)}."
+        )
+    if learned:
+        schedule = get_schedule(schedule)
+        if len(available) < 2:
+            raise ValueError(
+                "PDL+GRU is pretrained on the other catheters, so X needs recordings of at "
+                f"least two catheters in its 'catheter' column; got {available} (or pass "
+                "learned=False)."
+            )
+    else:
+        schedule = None
+
+    X_eval, y_eval = X[evaluated].reset_index(drop=True), y[evaluated]
+    reduced, records, summary = [], [], []
+    for n_rays, stride in budgets:
+        X_b, y_b = reduce_sweep(X_eval, y_eval, n_rays=n_rays, stride=stride, n_rays_swept=n_rays_swept)
+        X_b = X_b.reset_index(drop=True)
+        kwargs = {"n_rays": n_rays, "ray_spacing_deg": spacing, "n_jobs": n_jobs}
+        Xt = PDLBackbone(**kwargs).fit(X_b).transform(X_b)[list(_LEARNER_COLUMNS)]
+        predictions = {
+            "PCC": PCCBackbone(**kwargs).fit(X_b).predict(X_b),
+            "PDL": Xt[list(BACKBONE_COLUMNS)].to_numpy(),
+        }
+        for method, pred in predictions.items():
+            records.append((n_rays, stride, method, -1, per_run_rmse(y_b, pred, X_b)))
+        samples, seconds = _sweep_size(X_b, stride)
+        summary.append({"n_rays": n_rays, "stride": stride, "sweep_samples": float(samples.median()),
+                        "sweep_s": float(seconds.median())})
+        reduced.append((Xt, y_b))
+
+    if learned:
+        records += _learned_records(
+            X, y, budgets, reduced, schedule, exclude, evaluated_catheters, n_jobs, verbose
+        )
+
+    run_info = X_eval[[fmt.RUN, fmt.CATHETER, fmt.SETTING]].astype(str).drop_duplicates(fmt.RUN)
+    run_info = run_info.set_index(fmt.RUN)
+    frames = []
+    for n_rays, stride, method, seed, per_run in records:
+        frame = per_run.rename("rmse_mm").rename_axis(fmt.RUN).reset_index()
+        frame[fmt.RUN] = frame[fmt.RUN].astype(str)
+        frame = frame.join(run_info, on=fmt.RUN)
+        frame.insert(0, "seed", seed)
+        frame.insert(0, "method", method)
+        frame.insert(0, "stride", stride)
+        frame.insert(0, "n_rays", n_rays)
+        frames.append(frame)
+    run_rmse = pd.concat(frames, ignore_index=True)[
+        ["n_rays", "stride", "method", "seed", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]
+    ]
+    means = (
+        run_rmse.groupby(["n_rays", "stride", "method", "seed"], sort=False)["rmse_mm"].mean()
+        .groupby(["n_rays", "stride", "method"], sort=False).mean()
+        .unstack("method")
+    )
+    table = pd.DataFrame(summary).set_index(["n_rays", "stride"])
+    table = table.join(means[[m for m in BUDGET_METHODS if m in means.columns]]).reset_index()
+    return Bunch(
+        summary=table,
+        run_rmse=run_rmse,
+        schedule=schedule,
+        catheters=tuple(evaluated_catheters),
+        exclude_settings=exclude,
+        elapsed=time.perf_counter() - start,
+    )
+
+
+def _learned_records(X, y, budgets, reduced, schedule, exclude, catheters, n_jobs, verbose):
+    """Per-run RMSE of PDL+GRU trained on full sweeps, for every budget and seed."""
+    Xb = PDLBackbone(n_jobs=n_jobs).fit(X).transform(X)[list(_LEARNER_COLUMNS)]
+    loco = LeaveOneCatheterOut(exclude_settings=exclude)
+    if schedule.n_setting_folds is None:
+        within = LeaveOneSettingOut(exclude_settings=exclude)
+    else:
+        within = SettingGroupKFold(n_splits=schedule.n_setting_folds, exclude_settings=exclude)
+    catheter_ids = X[fmt.CATHETER].astype(str).to_numpy()
+    run_ids = X[fmt.RUN].astype(str).to_numpy()
+    pre_params = {**schedule.model_params, **schedule.pretrain_params}
+    fine_params = {**schedule.model_params, **schedule.finetune_params}
+
+    def pretrain_tasks():
+        for train, test in loco.split(X):
+            catheter = catheter_ids[test[0]]
+            if catheter in catheters:
+                for seed in schedule.seeds:
+                    key = {"seed": seed, "catheter": catheter}
+                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train])
+
+    n_pre = len(catheters) * len(schedule.seeds)
+    pretrained = {
+        (key["catheter"], key["seed"]): model
+        for key, model, _ in _run_tasks(pretrain_tasks(), n_pre, n_jobs, "pretraining", verbose)
+    }
+
+    folds = [(train, test) for train, test in within.split(X) if catheter_ids[test[0]] in catheters]
+    budget_runs = [Xt[fmt.RUN].astype(str).to_numpy() for Xt, _ in reduced]
+
+    def finetune_tasks():
+        for fold, (train, test) in enumerate(folds):
+            catheter = catheter_ids[test[0]]
+            test_runs = np.unique(run_ids[test])
+            X_tests = [Xt[np.isin(runs, test_runs)] for (Xt, _), runs in zip(reduced, budget_runs)]
+            for seed in schedule.seeds:
+                key = {"seed": seed, "fold": fold, "test_runs": test_runs}
+                yield delayed(_finetune_budgets)(
+                    key, fine_params, pretrained[catheter, seed], Xb.iloc[train], y[train], X_tests
+                )
+
+    predictions = {
+        seed: [np.full((len(Xt), 3), np.nan) for Xt, _ in reduced] for seed in schedule.seeds
+    }
+    n_fine = len(folds) * len(schedule.seeds)
+    for key, preds, _ in _run_tasks(finetune_tasks(), n_fine, n_jobs, "fine-tuning", verbose):
+        for b, pred in enumerate(preds):
+            predictions[key["seed"]][b][np.isin(budget_runs[b], key["test_runs"])] = pred
+    records = []
+    for seed in schedule.seeds:
+        for (n_rays, stride), (Xt, y_b), pred in zip(budgets, reduced, predictions[seed]):
+            if not np.isfinite(pred).all():
+                raise RuntimeError(f"{_VARIANT}: some evaluated rows got no prediction (seed {seed}).")
+            records.append((n_rays, stride, _VARIANT, seed, per_run_rmse(y_b, pred, Xt)))
+    return records
+
+
+def format_budget_report(result):
+    """The budget table as text, with a header naming the runs and the schedule.
+
+    Parameters
+    ----------
+    result : sklearn.utils.Bunch
+        Output of :func:`run_calibration_budget`.
+
+    Returns
+    -------
+    text : str
+    """
+    table = result.summary.copy()
+    methods = [m for m in BUDGET_METHODS if m in table.columns]
+    table = table.rename(columns={"n_rays": "rays", "sweep_samples": "sweep samples",
+                                  "sweep_s": "sweep (s)"})
+    n_runs = result.run_rmse[fmt.RUN].nunique()
+    schedule = "backbones only" if result.schedule is None else (
+        f"PDL+GRU schedule {result.schedule.name!r}, seeds {list(result.schedule.seeds)}"
+    )
+    lines = [
+        "Calibration budget: mean per-run RMSE (mm) on the motion rows",
+        f"{n_runs} runs of catheters {', '.join(result.catheters)}"
+        + (f", settings {', '.join(result.exclude_settings)} excluded" if result.exclude_settings else "")
+        + f"; {schedule}; {result.elapsed:.0f} s",
+        "sweep samples and sweep (s): median per run; stride s keeps every s-th sweep sample",
+        "",
+        table.to_string(
+            index=False,
+            formatters={
+                "sweep samples": "{:.0f}".format,
+                "sweep (s)": "{:.0f}".format,
+                **{m: "{:.2f}".format for m in methods},
+            },
+        ),
+    ]
+    return "\n".join(lines)
+
+
+def plot_calibration_budget(summary):
+    """Error against the number of rays and against the sweep stride.
+
+    Parameters
+    ----------
+    summary : pandas.DataFrame
+        The ``summary`` of :func:`run_calibration_budget`: columns
+        ``n_rays``, ``stride`` and one column of mean per-run RMSE (mm) per
+        method of :data:`BUDGET_METHODS`.
+
+    Returns
+    -------
+    figure : matplotlib.figure.Figure
+        Left: error against the rays kept (stride 1); right: error against
+        the stride (all rays, logarithmic axis).
+
+    Raises
+    ------
+    ImportError
+        If matplotlib is not installed.
+    """
+    from ._figures import _METHOD_COLOURS, _new_figure
+
+    methods = [m for m in BUDGET_METHODS if m in summary.columns]
+    full = int(summary["n_rays"].max())
+    by_rays = summary[summary["stride"] == 1].sort_values("n_rays")
+    by_stride = summary[summary["n_rays"] == full].sort_values("stride")
+    figure = _new_figure((9.0, 3.8))
+    left, right = figure.subplots(1, 2, sharey=True)
+    for method in methods:
+        style = {"color": _METHOD_COLOURS.get(method), "marker": "o", "label": method}
+        left.plot(by_rays["n_rays"], by_rays[method], **style)
+        right.plot(by_stride["stride"], by_stride[method], **style)
+    left.set_xticks(by_rays["n_rays"].tolist())
+    left.set_xlabel("rays in the sweep (every sample)")
+    left.set_ylabel("mean per-run RMSE (mm)")
+    left.set_title("Fewer rays")
+    right.set_xscale("log")
+    right.set_xticks(by_stride["stride"].tolist())
+    right.set_xticklabels([str(s) for s in by_stride["stride"]])
+    right.minorticks_off()
+    right.set_xlabel(f"stride of the sweep samples ({full} rays)")
+    right.set_title("Fewer sweep samples")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    left.set_ylim(bottom=0.0)
+    left.legend(loc="lower left")
+    return figure
+
+
+def write_budget_results(result, out_dir, *, figure=True, dpi=150):
+    """Write the budget tables as CSV and, optionally, the figure as PNG.
+
+    Parameters
+    ----------
+    result : sklearn.utils.Bunch
+        Output of :func:`run_calibration_budget`.
+    out_dir : str or path-like
+        Folder (created if missing).
+    figure : bool, default=True
+        Also draw ``calibration_budget.png`` (needs matplotlib:
+        ``pip install "skcath[plot]"``).
+    dpi : float, default=150
+        Resolution of the PNG file (dots per inch).
+
+    Returns
+    -------
+    paths : list of pathlib.Path
+        The files written (:data:`BUDGET_FILES`).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / BUDGET_FILES["summary"], out / BUDGET_FILES["run_rmse"]]
+    result.summary.to_csv(paths[0], index=False, float_format="%.6g")
+    result.run_rmse.to_csv(paths[1], index=False, float_format="%.6g")
+    if figure:
+        path = out / BUDGET_FILES["figure"]
+        plot_calibration_budget(result.summary).savefig(path, dpi=dpi)
+        paths.append(path)
+    return paths

@@ -1,0 +1,515 @@
+"""Catalogue of bad inputs: each is rejected with a clear message or masked as documented.
+
+Every case starts from a small valid recording, breaks it in one way and
+checks where it is caught (``check_recordings``, a backbone calibrating on the
+sweep, ``read_recording`` or ``tip_in_base_frame``), that the message names
+the column or run and says what was expected, and that the input is left
+unchanged. The table of these cases is in ``docs/data_format.rst``
+("Bad input: what is checked").
+"""
+
+import copy
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from skcath._validation import check_recordings
+from skcath.backbones import PDLBackbone
+from skcath.datasets import make_benchmark
+from skcath.frames import tip_in_base_frame
+from skcath.io import read_recording
+from skcath.sweep import find_rays
+
+REFERENCE = ["ref_x", "ref_y", "ref_z"]
+TARGET = ["p_x", "p_y", "p_z"]
+
+
+# ---------------------------------------------------------------------------
+# valid starting points
+# ---------------------------------------------------------------------------
+def tiny_recordings(n_runs=2, n_sweep=4, n_motion=5, seed=0):
+    """Small valid recordings: runs ``r0, r1, ...`` one after another, labels from 100."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for k in range(n_runs):
+        n = n_sweep + n_motion
+        sweep = np.arange(n) < n_sweep
+        ref = rng.normal(size=(n, 3))
+        ref[~sweep] = np.nan
+        frames.append(
+            pd.DataFrame(
+                {
+                    "catheter": f"c{k}",
+                    "setting": f"s{k}",
+                    "run": f"r{k}",
+                    "t": 0.1 * np.arange(n),
+                    "phase": np.where(sweep, "sweep", "motion"),
+                    "q1": rng.normal(size=n),
+                    "q2": rng.normal(size=n),
+                    "tau1": rng.normal(size=n),
+                    "tau2": rng.normal(size=n),
+                    "ref_x": ref[:, 0],
+                    "ref_y": ref[:, 1],
+                    "ref_z": ref[:, 2],
+                }
+            )
+        )
+    X = pd.concat(frames, ignore_index=True)
+    X.index = pd.RangeIndex(100, 100 + len(X))
+    return X, rng.normal(size=(len(X), 3))
+
+
+@pytest.fixture(scope="module")
+def bench():
+    """Two simulated runs (one catheter) with full 8-ray sweeps, rows relabelled 0..n-1."""
+    data = make_benchmark(n_catheters=1, n_runs=1, random_state=0)
+    runs = data.X["run"].unique()[:2]
+    keep = data.X["run"].isin(runs).to_numpy()
+    X = data.X[keep].reset_index(drop=True)
+    X["run"] = X["run"].astype(str)
+    return X, np.asarray(data.y)[keep]
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return tiny_recordings()
+
+
+# ---------------------------------------------------------------------------
+# breakers: each takes copies (X, y) and returns the broken (X, y)
+# ---------------------------------------------------------------------------
+def _rows(X, run, phase=None):
+    """Row labels of ``run`` (optionally only of ``phase``)."""
+    mask = X["run"] == run
+    if phase is not None:
+        mask &= X["phase"] == phase
+    return X.index[mask]
+
+
+def _first_run(X):
+    return X["run"].iloc[0]
+
+
+def _set(column, value, run="r1", step=2):
+    def breaker(X, y):
+        if value is not None and not isinstance(value, float):
+            X[column] = X[column].astype(object)
+        X.loc[_rows(X, run)[step], column] = value
+        return X, y
+
+    return breaker
+
+
+def _drop_column(column):
+    return lambda X, y: (X.drop(columns=column), y)
+
+
+def _swap_times(X, y):
+    rows = _rows(X, "r0")
+    X.loc[[rows[1], rows[2]], "t"] = X.loc[[rows[2], rows[1]], "t"].to_numpy()
+    return X, y
+
+
+def _repeat_time(X, y):
+    rows = _rows(X, "r1")
+    X.loc[rows[5], "t"] = X.loc[rows[4], "t"]
+    return X, y
+
+
+def _reuse_run_id(column):
+    def breaker(X, y):
+        X[column] = X[column].astype(object)
+        X.loc[_rows(X, "r1")[-1], column] = f"{column[0]}-other"
+        return X, y
+
+    return breaker
+
+
+def _sweep_after_motion(X, y):
+    X.loc[_rows(X, "r0")[-1], "phase"] = "sweep"
+    return X, y
+
+
+def _phase_label(label):
+    def breaker(X, y):
+        X["phase"] = X["phase"].astype(object)
+        X.loc[_rows(X, "r0")[0], "phase"] = label
+        return X, y
+
+    return breaker
+
+
+def _no_sweep_rows(X, y):
+    X.loc[_rows(X, "r1"), "phase"] = "motion"
+    X.loc[_rows(X, "r1"), REFERENCE] = np.nan
+    return X, y
+
+
+def _as_dtype(column, dtype):
+    def breaker(X, y):
+        if dtype == "bool":
+            X[column] = X[column] > 0
+        elif dtype == "datetime":
+            X[column] = pd.Timestamp("2026-01-01") + pd.to_timedelta(X[column], unit="s")
+        elif dtype == "complex":
+            X[column] = X[column].astype(complex)
+        return X, y
+
+    return breaker
+
+
+def _unhashable_run_ids(X, y):
+    X["run"] = [[run] for run in X["run"]]
+    return X, y
+
+
+def _duplicate_column(X, y):
+    return pd.concat([X, X[["q1"]]], axis=1), y
+
+
+def _y_rows(n):
+    return lambda X, y: (X, y[:n])
+
+
+def _y_value(value, row=3, col=1):
+    def breaker(X, y):
+        if isinstance(value, str):
+            y = y.astype(object)
+        y[row, col] = value
+        return X, y
+
+    return breaker
+
+
+# breakers on the simulated runs (the backbone calibrates on their sweeps)
+def _one_run(X, y, n_rows=None):
+    rows = np.flatnonzero((X["run"] == _first_run(X)).to_numpy())[:n_rows]
+    return X.iloc[rows].reset_index(drop=True), y[rows]
+
+
+def _drop_one_ray(X, y):
+    run = _first_run(X)
+    sweep = ((X["run"] == run) & (X["phase"] == "sweep")).to_numpy()
+    rays = find_rays(X.loc[sweep, ["q1", "q2"]].to_numpy())
+    labels = np.full(len(X), -2)
+    labels[sweep] = rays.labels
+    keep = labels != labels[sweep][rays.labels >= 0][0]
+    return X[keep].reset_index(drop=True), y[keep]
+
+
+def _stuck_q2(X, y):
+    X.loc[_rows(X, _first_run(X), "sweep"), "q2"] = 0.0
+    return X, y
+
+
+def _radians(X, y):
+    X[["q1", "q2"]] = np.deg2rad(X[["q1", "q2"]])
+    return X, y
+
+
+def _metres(X, y):
+    X[REFERENCE] = X[REFERENCE] / 1000.0
+    return X, y / 1000.0
+
+
+def _drop_most_references(X, y):
+    rows = _rows(X, _first_run(X), "sweep")
+    X.loc[rows[: int(0.9 * len(rows))], REFERENCE] = np.nan
+    return X, y
+
+
+# ---------------------------------------------------------------------------
+# where the case is caught
+# ---------------------------------------------------------------------------
+def _check(X, y):
+    check_recordings(X, y)
+
+
+def _backbone(X, y):
+    PDLBackbone().fit(X).predict(X)
+
+
+def _standard_file(X, y):
+    """The frame and its target as one file with the standard column names."""
+    frame = X.copy()
+    frame[TARGET] = y
+    return frame
+
+
+CATCHERS = {"check": _check, "backbone": _backbone}
+
+REJECTED = [
+    # --- columns and dtypes (check_recordings) ---
+    pytest.param("tiny", _drop_column("q1"), "check", ValueError,
+                 r"missing the column\(s\) \['q1'\]", id="missing-column"),
+    pytest.param("tiny", _duplicate_column, "check", ValueError,
+                 r"column\(s\) \['q1'\] more than once", id="duplicated-column"),
+    pytest.param("tiny", _as_dtype("q1", "bool"), "check", ValueError,
+                 r"Column 'q1' must hold real numbers .*got dtype bool", id="bool-dtype"),
+    pytest.param("tiny", _as_dtype("t", "datetime"), "check", ValueError,
+                 r"Column 't' must hold real numbers .*datetime", id="datetime-time"),
+    pytest.param("tiny", _as_dtype("tau2", "complex"), "check", ValueError,
+                 r"Column 'tau2' must hold real numbers .*complex", id="complex-dtype"),
+    pytest.param("tiny", _set("q1", "12,5"), "check", ValueError,
+                 r"Column 'q1' must be numeric.*first '12,5' at run 'r1'",
+                 id="string-not-a-number"),
+    pytest.param("tiny", _unhashable_run_ids, "check", ValueError,
+                 r"Column 'run' must hold hashable ids", id="unhashable-run-ids"),
+    pytest.param("tiny", _set("run", None), "check", ValueError,
+                 r"Column 'run' contains 1 missing id", id="missing-run-id"),
+    # --- values ---
+    pytest.param("tiny", _set("q2", np.nan), "check", ValueError,
+                 r"Column 'q2' contains 1 non-finite value\(s\) \(every value must be "
+                 r"finite\); first NaN at run 'r1'", id="nan-motor"),
+    pytest.param("tiny", _set("tau1", np.inf), "check", ValueError,
+                 r"Column 'tau1' contains 1 non-finite .*first inf at run 'r1'",
+                 id="inf-torque"),
+    pytest.param("tiny", _set("ref_x", -np.inf, step=1), "check", ValueError,
+                 r"Column 'ref_x' .*NaN \(tracker dropout\) is allowed but \+-inf is not"
+                 r".*run 'r1'", id="inf-reference"),
+    pytest.param("tiny", _set("q1", 1e300), "check", ValueError,
+                 r"Column 'q1' contains 1 value\(s\) larger than 1e\+12 .*run 'r1'"
+                 r".*degrees, s, mm", id="huge-motor-angle"),
+    pytest.param("tiny", _set("t", -3.0e38, step=0), "check", ValueError,
+                 r"Column 't' contains 1 value\(s\) larger than 1e\+12 .*run 'r1'",
+                 id="fill-value-time"),
+    # --- time axis ---
+    pytest.param("tiny", _swap_times, "check", ValueError,
+                 r"Column 't' must be strictly increasing within each run.*run 'r0'",
+                 id="non-monotonic-time"),
+    pytest.param("tiny", _repeat_time, "check", ValueError,
+                 r"Column 't' must be strictly increasing within each run.*run 'r1' "
+                 r"goes from t=0\.4 s .* to t=0\.4 s", id="duplicated-timestamp"),
+    # --- ids and phases ---
+    pytest.param("tiny", _reuse_run_id("catheter"), "check", ValueError,
+                 r"Run id 'r1' is used for several catheters .*exactly one catheter",
+                 id="run-id-reused-across-catheters"),
+    pytest.param("tiny", _reuse_run_id("setting"), "check", ValueError,
+                 r"Run id 'r1' is used for several settings", id="run-id-reused-across-settings"),
+    pytest.param("tiny", lambda X, y: (X.iloc[:0], y[:0]), "check", ValueError,
+                 r"empty DataFrame \(0 rows\)", id="empty-recording"),
+    pytest.param("tiny", _no_sweep_rows, "check", ValueError,
+                 r"Run\(s\) 'r1' have no 'sweep' rows", id="run-without-sweep"),
+    pytest.param("tiny", _sweep_after_motion, "check", ValueError,
+                 r"In run 'r0' a 'sweep' row .* follows a 'motion' row", id="sweep-after-motion"),
+    pytest.param("tiny", _phase_label("calibration"), "check", ValueError,
+                 r"Column 'phase' must contain only \['sweep', 'motion'\]; found invalid "
+                 r"value\(s\) 'calibration'", id="unknown-phase-label"),
+    pytest.param("tiny", _phase_label("Sweep"), "check", ValueError,
+                 r"Column 'phase' must contain only .*'Sweep'", id="capitalised-phase-label"),
+    pytest.param("tiny", _phase_label(None), "check", ValueError,
+                 r"Column 'phase' must contain only .*\(1 missing\)", id="missing-phase-label"),
+    # --- target ---
+    pytest.param("tiny", _y_rows(5), "check", ValueError,
+                 r"y has 5 rows but the recordings X have 18", id="mismatched-y-length"),
+    pytest.param("tiny", lambda X, y: (X, y[:, :2]), "check", ValueError,
+                 r"y must have shape \(n_rows, 3\) .*got shape \(18, 2\)", id="y-two-columns"),
+    pytest.param("tiny", _y_value(np.inf), "check", ValueError,
+                 r"y contains 1 infinite value\(s\); first in column 'p_y'", id="inf-target"),
+    pytest.param("tiny", _y_value(1e30), "check", ValueError,
+                 r"y contains 1 value\(s\) larger than 1e\+12 .*'p_y'", id="huge-target"),
+    pytest.param("tiny", _y_value("n/a"), "check", ValueError,
+                 r"y column 1 \('p_y'\) must be numeric \(mm\); value 'n/a'",
+                 id="string-in-target"),
+    # --- sweep content (caught when a backbone calibrates each run) ---
+    pytest.param("bench", _drop_one_ray, "backbone", ValueError,
+                 r"Rays missing in the sweep of run '\S+': found 7 .*expected n_rays=8",
+                 id="missing-sweep-ray"),
+    pytest.param("bench", _stuck_q2, "backbone", ValueError,
+                 r"Motor column 'q2' does not move during the sweep of run '\S+'",
+                 id="stuck-motor"),
+    pytest.param("bench", _radians, "backbone", ValueError,
+                 r"motors do not move during the sweep of run '\S+'.*in degrees.*radians",
+                 id="motor-angles-in-radians"),
+    pytest.param("bench", _metres, "backbone", ValueError,
+                 r"reference tip positions in run '\S+' do not move.*must be in mm; "
+                 r"if they are in metres", id="reference-in-metres"),
+    pytest.param("bench", lambda X, y: _one_run(X, y, 1), "backbone", ValueError,
+                 r"sweep of run '\S+' has 1 samples; expected at least 80",
+                 id="single-sample-run"),
+    pytest.param("bench", _drop_most_references, "backbone", ValueError,
+                 r"Too few finite reference tip positions in run '\S+'.*ref_x, ref_y, ref_z",
+                 id="tracker-dropout-on-most-of-sweep"),
+]
+
+
+def _copy(value):
+    return value.copy(deep=True) if isinstance(value, pd.DataFrame) else copy.deepcopy(value)
+
+
+def _assert_unchanged(before, after):
+    if isinstance(before, pd.DataFrame):
+        pd.testing.assert_frame_equal(after, before)
+    else:
+        np.testing.assert_array_equal(np.asarray(after), np.asarray(before))
+
+
+@pytest.mark.parametrize("source, breaker, where, error, match", REJECTED)
+def test_bad_input_is_rejected(request, source, breaker, where, error, match):
+    X, y = request.getfixturevalue(source)
+    X_bad, y_bad = breaker(X.copy(deep=True), y.copy())
+    X_before, y_before = _copy(X_bad), _copy(y_bad)
+    with pytest.raises(error, match=match):
+        CATCHERS[where](X_bad, y_bad)
+    _assert_unchanged(X_before, X_bad)
+    _assert_unchanged(y_before, y_bad)
+
+
+@pytest.mark.parametrize(
+    "X",
+    [
+        pytest.param(np.zeros((3, 12)), id="ndarray-instead-of-frame"),
+        pytest.param({"run": ["r0"], "t": [0.0]}, id="dict-instead-of-frame"),
+    ],
+)
+def test_not_a_frame_is_a_type_error(X):
+    before = copy.deepcopy(X)
+    with pytest.raises(TypeError, match=r"expects the long recording format: a pandas DataFrame"):
+        check_recordings(X)
+    if isinstance(X, dict):
+        assert X == before
+    else:
+        np.testing.assert_array_equal(X, before)
+
+
+# ---------------------------------------------------------------------------
+# readers
+# ---------------------------------------------------------------------------
+READER_REJECTED = [
+    pytest.param(lambda F: F.drop(columns="q2"), r"file has no 'q2' column; map it with "
+                 r"columns=\{'q2': \.\.\.\} or set it with constants", id="reader-missing-column"),
+    pytest.param(lambda F: F.assign(q1=F["q1"].astype(object).where(F.index != 3, "abc")),
+                 r"column 'q1' must hold numbers; 1 value\(s\) are not numeric, first 'abc'",
+                 id="reader-string-not-a-number"),
+    pytest.param(lambda F: F.assign(t=F["t"].where(F.index != 5, F["t"][4])),
+                 r"recording read is not valid: Column 't' must be strictly increasing.*"
+                 r"run 'r0'", id="reader-duplicated-timestamp"),
+    pytest.param(lambda F: F.assign(tau2=F["tau2"].where(F.index != 2, 1e20)),
+                 r"recording read is not valid: Column 'tau2' contains 1 value\(s\) larger",
+                 id="reader-huge-value"),
+    pytest.param(lambda F: F.iloc[:0], r"file has no rows", id="reader-empty-file"),
+]
+
+
+@pytest.mark.parametrize("breaker, match", READER_REJECTED)
+def test_bad_file_is_rejected(tmp_path, breaker, match):
+    X, y = tiny_recordings(n_runs=1)
+    frame = breaker(_standard_file(X, y).reset_index(drop=True))
+    before = frame.copy(deep=True)
+    path = tmp_path / "rec.csv"
+    frame.to_csv(path, index=False)
+    with pytest.raises(ValueError, match=r"rec\.csv: (the )?" + match):
+        read_recording(path)
+    pd.testing.assert_frame_equal(frame, before)
+
+
+def test_reader_keeps_tracker_dropouts_as_nan(tmp_path):
+    """Documented masking: a dropped tracker sample keeps its row with a NaN target."""
+    X, y = tiny_recordings(n_runs=1)
+    y[[2, 6]] = np.nan
+    frame = _standard_file(X, y).reset_index(drop=True)
+    frame.to_csv(tmp_path / "rec.csv", index=False)
+    X_read, y_read = read_recording(tmp_path / "rec.csv")
+    assert len(X_read) == len(X)
+    np.testing.assert_array_equal(np.isnan(y_read).all(axis=1), np.isnan(y).all(axis=1))
+    np.testing.assert_allclose(y_read[~np.isnan(y).any(axis=1)], y[~np.isnan(y).any(axis=1)])
+
+
+# ---------------------------------------------------------------------------
+# quaternions (tip_in_base_frame)
+# ---------------------------------------------------------------------------
+def _poses(n=6, seed=0):
+    rng = np.random.default_rng(seed)
+    quats = rng.normal(size=(n, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    return rng.normal(size=(n, 3)) * 50, rng.normal(size=(n, 3)) * 50, quats
+
+
+def test_non_unit_quaternion_is_normalised():
+    """Documented masking: quaternions are normalised, so their scale does not matter."""
+    tip, base, quats = _poses()
+    scaled = quats * np.array([[3.0], [0.2], [1.0], [7.5], [1.0], [0.01]])
+    before = scaled.copy()
+    np.testing.assert_allclose(
+        tip_in_base_frame(tip, base, scaled), tip_in_base_frame(tip, base, quats), atol=1e-9
+    )
+    np.testing.assert_array_equal(scaled, before)
+
+
+def test_zero_quaternion_is_rejected():
+    tip, base, quats = _poses()
+    quats[4] = 0.0
+    before = quats.copy()
+    with pytest.raises(
+        ValueError, match=r"base_orientation has a zero-norm quaternion at row 4.*Mark missing"
+    ):
+        tip_in_base_frame(tip, base, quats)
+    np.testing.assert_array_equal(quats, before)
+
+
+# ---------------------------------------------------------------------------
+# documented masking and conversions of check_recordings
+# ---------------------------------------------------------------------------
+def _dropouts(X, y):
+    X.loc[_rows(X, "r0", "sweep")[1], REFERENCE] = np.nan
+    y[[0, 7]] = np.nan
+    return X, y
+
+
+def _string_numbers(X, y):
+    X["q1"] = [f"{v:.17g}" for v in X["q1"]]
+    return X, y
+
+
+def _nullable_ints(X, y):
+    X["tau1"] = pd.array(np.round(X["tau1"] * 10).astype(int), dtype="Int64")
+    return X, y
+
+
+def _interleaved(X, y):
+    order = np.argsort(np.concatenate([np.arange(9), np.arange(9) + 0.5]), kind="stable")
+    return X.iloc[order], y[order]
+
+
+MASKED = [
+    pytest.param(_dropouts, id="dropped-tracker-samples-kept-as-nan"),
+    pytest.param(_string_numbers, id="string-numbers-converted"),
+    pytest.param(_nullable_ints, id="nullable-integers-converted"),
+    pytest.param(_interleaved, id="interleaved-runs-kept-in-row-order"),
+    pytest.param(lambda X, y: (X.assign(extra=list("abcdefghijklmnopqr")), y),
+                 id="extra-column-passed-through"),
+]
+
+
+@pytest.mark.parametrize("breaker", MASKED)
+def test_documented_masking(tiny, breaker):
+    X, y = tiny
+    X_in, y_in = breaker(X.copy(deep=True), y.copy())
+    X_before, y_before = X_in.copy(deep=True), y_in.copy()
+    X_out, y_out = check_recordings(X_in, y_in)
+    pd.testing.assert_frame_equal(X_in, X_before)
+    np.testing.assert_array_equal(y_in, y_before)
+    # same rows, labels and columns in the same order; numeric channels float64
+    pd.testing.assert_index_equal(X_out.index, X_in.index)
+    assert list(X_out.columns) == list(X_in.columns)
+    for column in ["t", "q1", "q2", "tau1", "tau2", *REFERENCE]:
+        assert X_out[column].dtype == np.float64
+        np.testing.assert_array_equal(
+            X_out[column].to_numpy(), pd.to_numeric(X_in[column]).to_numpy(dtype=float)
+        )
+    np.testing.assert_array_equal(y_out, y_in)  # NaN rows kept in place
+
+
+def test_backbone_calibrates_through_scattered_dropouts(bench):
+    """A third of the sweep references missing: calibration still works on the rest."""
+    X, _ = bench
+    X = X.copy(deep=True)
+    rows = _rows(X, _first_run(X), "sweep")
+    X.loc[rows[::3], REFERENCE] = np.nan
+    before = X.copy(deep=True)
+    full = PDLBackbone().fit(bench[0]).predict(bench[0])
+    masked = PDLBackbone().fit(X).predict(X)
+    pd.testing.assert_frame_equal(X, before)
+    assert np.isfinite(masked).all()
+    assert np.median(np.linalg.norm(masked - full, axis=1)) < 1.0

@@ -1,0 +1,200 @@
+"""Tests of ``skcath.online.export``: the residual's stepping network as ONNX / TorchScript.
+
+Each exported graph is stepped through the motion samples of a run, with the
+run's rotation and context from ``OnlineEstimator.start`` and the nominal tip
+from its backbone kernel, and compared with ``Pipeline.predict``: float64
+graphs with the float64 ``predict`` (``module_.double()``) at 1e-9 mm,
+float32 graphs with the float32 ``predict`` at 1e-4 mm. ONNX graphs run in
+onnxruntime on the CPU with one thread.
+"""
+
+import copy
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from numpy.testing import assert_allclose
+from sklearn.pipeline import Pipeline
+
+from skcath.backbones import PDLBackbone
+from skcath.datasets import make_benchmark
+from skcath.online import OnlineEstimator, export, export_io
+from skcath.residuals import GRUResidual, MLPResidual, NoResidual
+
+CHANNELS = ["q1", "q2", "tau1", "tau2"]
+
+
+def _shorten(X, settings, n_motion):
+    motion = (X["phase"] == "motion").to_numpy()
+    rank = pd.Series(motion, index=X.index).groupby(X["run"], observed=True).cumsum()
+    return X["setting"].isin(settings).to_numpy() & (~motion | (rank.to_numpy() <= n_motion))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    bench = make_benchmark(
+        n_catheters=1, n_runs=1, cache=True, data_home=tmp_path_factory.mktemp("skcath_data")
+    )
+    X, y = bench.X, np.asarray(bench.y)
+    train = _shorten(X, ["S02", "S09"], 300)
+    test = _shorten(X, ["S05"], 150)
+    backbone = PDLBackbone().fit(X[train])
+    X_run = X[test].reset_index(drop=True)
+    return backbone, backbone.transform(X[train]), y[train], X_run, backbone.transform(X_run)
+
+
+@pytest.fixture(scope="module")
+def pipelines(data):
+    backbone, Xb, y, _, _ = data
+    cache = {}
+
+    def get(Est, **params):
+        key = (Est, tuple(sorted(params.items())))
+        if key not in cache:
+            base = dict(
+                max_epochs=1, batch_size=16, window=50, burn_in=10, sweep_stride=50,
+                n_threads=1, random_state=0, module__hidden_size=8,
+                module__encoder_hidden_size=8, module__context_size=4,
+            )
+            base.update(params)
+            cache[key] = Pipeline([("backbone", backbone), ("residual", Est(**base).fit(Xb, y))])
+        return cache[key]
+
+    return get
+
+
+def _onnx_runner(path):
+    ort = pytest.importorskip("onnxruntime")
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    session = ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
+    return lambda feed: session.run(None, feed), session
+
+
+def _torchscript_runner(path, names):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # torch.jit is deprecated in torch 2.13
+        module = torch.jit.load(path)
+
+    def run(feed):
+        with torch.no_grad():
+            out = module(*[torch.from_numpy(feed[name]) for name in names])
+        out = out if isinstance(out, tuple) else (out,)
+        return [o.numpy() for o in out]
+
+    return run
+
+
+def _stream_graph(run, pipe, X_run, dtype):
+    """Tips of the motion samples from the exported step graph."""
+    motion = (X_run["phase"] == "motion").to_numpy()
+    sweep = X_run[~motion]
+    est = OnlineEstimator(pipe, dtype="float64" if dtype == np.float64 else "float32")
+    est.start(sweep)
+    inputs, _ = export_io(pipe)
+    residual = pipe["residual"]
+    hidden = np.zeros(inputs["hidden"], dtype) if "hidden" in inputs else None
+    last = sweep[["q1", "q2"]].to_numpy()[-1]
+    tips = []
+    for q1, q2, tau1, tau2 in X_run.loc[motion, CHANNELS].to_numpy():
+        est.step(q1, q2, tau1, tau2)
+        b = est.nominal_.copy()
+        features = [q1, q2, q1 - last[0], q2 - last[1]]
+        features += [tau1, tau2] if residual.use_torque else []
+        last = (q1, q2)
+        feed = {"features": np.array([[*features, *b]], dtype)}
+        if "rotation" in inputs:
+            feed["rotation"] = est.rotation_.astype(dtype)
+        if "context" in inputs:
+            feed["context"] = est.context_[None].astype(dtype)
+        if hidden is not None:
+            feed["hidden"] = hidden
+        out = run(feed)
+        if hidden is not None:
+            hidden = out[1]
+        tips.append(b + out[0][0])
+    return np.array(tips), motion
+
+
+def _expected(pipe, X_run, Xb_run, dtype):
+    motion = (X_run["phase"] == "motion").to_numpy()
+    if dtype == np.float32:
+        return pipe.predict(X_run)[motion]
+    residual = copy.deepcopy(pipe["residual"])
+    residual.module_.double()
+    return residual.predict(Xb_run)[motion]
+
+
+def _export(pipe, path, fmt, dtype):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # exporter deprecation notices
+        return export(pipe, path, fmt, dtype=np.dtype(dtype).name)
+
+
+@pytest.mark.parametrize("Est", [GRUResidual, MLPResidual])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_onnx_matches_predict(data, pipelines, tmp_path, Est, dtype):
+    pytest.importorskip("onnxruntime")
+    _, _, _, X_run, Xb_run = data
+    pipe = pipelines(Est)
+    path = _export(pipe, tmp_path / "step.onnx", "onnx", dtype)
+    run, session = _onnx_runner(path)
+    inputs, outputs = export_io(pipe)
+    assert [i.name for i in session.get_inputs()] == list(inputs)
+    assert [tuple(i.shape) for i in session.get_inputs()] == list(inputs.values())
+    assert [o.name for o in session.get_outputs()] == list(outputs)
+    tips, _ = _stream_graph(run, pipe, X_run, dtype)
+    tol = 1e-9 if dtype == np.float64 else 1e-4
+    assert_allclose(tips, _expected(pipe, X_run, Xb_run, dtype), rtol=0, atol=tol)
+
+
+def test_onnx_graph_has_no_gru_node(data, pipelines, tmp_path):
+    onnx = pytest.importorskip("onnx")
+    path = _export(pipelines(GRUResidual), tmp_path / "step.onnx", "onnx", np.float32)
+    model = onnx.load(path)
+    onnx.checker.check_model(model)
+    ops = {node.op_type for node in model.graph.node}
+    assert "GRU" not in ops and {"Sigmoid", "Tanh"} <= ops
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{}, {"module__num_layers": 2, "frame": "base", "use_context": False, "use_torque": False}],
+    ids=["default", "two-layers-base-no-context-no-torque"],
+)
+def test_torchscript_matches_predict(data, pipelines, tmp_path, params):
+    _, _, _, X_run, Xb_run = data
+    pipe = pipelines(GRUResidual, **params)
+    path = _export(pipe, tmp_path / "step.pt", "torchscript", np.float64)
+    inputs, outputs = export_io(pipe)
+    run = _torchscript_runner(path, list(inputs))
+    tips, _ = _stream_graph(run, pipe, X_run, np.float64)
+    assert_allclose(tips, _expected(pipe, X_run, Xb_run, np.float64), rtol=0, atol=1e-9)
+
+
+def test_export_io_names_and_shapes(pipelines):
+    inputs, outputs = export_io(pipelines(GRUResidual))
+    assert inputs == {"features": (1, 9), "rotation": (3, 3), "context": (1, 4), "hidden": (1, 1, 8)}
+    assert outputs == {"residual": (1, 3), "hidden_out": (1, 1, 8)}
+    inputs, outputs = export_io(pipelines(MLPResidual))
+    assert inputs == {"features": (1, 9), "rotation": (3, 3), "context": (1, 4)}
+    assert outputs == {"residual": (1, 3)}
+    inputs, _ = export_io(
+        pipelines(GRUResidual, module__num_layers=2, frame="base", use_context=False, use_torque=False)
+    )
+    assert inputs == {"features": (1, 7), "hidden": (2, 1, 8)}
+
+
+def test_export_errors(data, pipelines, tmp_path):
+    backbone, Xb, y, _, _ = data
+    with pytest.raises(ValueError, match="format must be one of"):
+        export(pipelines(GRUResidual), tmp_path / "x", "tflite")
+    with pytest.raises(ValueError, match="dtype must be"):
+        export(pipelines(GRUResidual), tmp_path / "x", "onnx", dtype="float16")
+    plain = Pipeline([("backbone", backbone), ("residual", NoResidual().fit(Xb, y))])
+    with pytest.raises(ValueError, match="no network to export"):
+        export(plain, tmp_path / "x.onnx")
+    assert not (tmp_path / "x.onnx").exists()

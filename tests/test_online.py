@@ -1,0 +1,429 @@
+"""Tests of the streaming estimator ``skcath.online.OnlineEstimator``.
+
+The central check: after ``start`` on a run's sweep, stepping through the
+run's motion samples one at a time gives what ``Pipeline.predict`` gives for
+that run, for every backbone (PCC, PDL) and residual (NoResidual, MLP, GRU).
+The float64 step path is compared with ``predict`` run in float64
+(``module_.double()``) at 1e-9 mm, and with the float32 ``predict`` as
+fitted at the documented float32 tolerance. Then the per-sample backbone
+kernels, ``reset``, the bad-input policies, errors, and an attached detector.
+
+The networks are tiny and train for one epoch on two shortened runs.
+"""
+
+import copy
+
+import numpy as np
+import pandas as pd
+import pytest
+from numpy.testing import assert_allclose
+from sklearn.exceptions import NotFittedError
+from sklearn.pipeline import Pipeline
+from sklearn.utils._param_validation import InvalidParameterError
+
+from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
+from skcath.datasets import make_benchmark
+from skcath.online import OnlineEstimator, calibrate_sweep
+from skcath.online._fast import PCCStep, PDLStep
+from skcath.residuals import GRUResidual, MLPResidual, NoResidual
+
+TRAIN_SETTINGS = ["S02", "S09"]
+TEST_SETTING = "S05"
+N_MOTION = 300
+CHANNELS = ["q1", "q2", "tau1", "tau2"]
+# float32 predict vs the float64 step: rounding of the float32 network
+FLOAT32_TOL_MM = 1e-4
+# float64 predict vs the float64 step
+FLOAT64_TOL_MM = 1e-9
+
+
+def _shorten(X, settings, n_motion):
+    motion = (X["phase"] == "motion").to_numpy()
+    rank = pd.Series(motion, index=X.index).groupby(X["run"], observed=True).cumsum()
+    return X["setting"].isin(settings).to_numpy() & (~motion | (rank.to_numpy() <= n_motion))
+
+
+def _tiny(Est, **params):
+    base = dict(
+        max_epochs=1,
+        batch_size=16,
+        window=50,
+        burn_in=10,
+        sweep_stride=50,
+        n_threads=1,
+        random_state=0,
+        module__hidden_size=8,
+        module__encoder_hidden_size=8,
+        module__context_size=4,
+    )
+    if Est is GRUResidual:
+        base["module__head_hidden_size"] = 8
+    base.update(params)
+    return Est(**base)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """Training rows (two shortened runs) and one shortened test run."""
+    bench = make_benchmark(
+        n_catheters=1, n_runs=1, cache=True, data_home=tmp_path_factory.mktemp("skcath_data")
+    )
+    X, y = bench.X, np.asarray(bench.y)
+    train = _shorten(X, TRAIN_SETTINGS, N_MOTION)
+    test = _shorten(X, [TEST_SETTING], 200)
+    return X[train], y[train], X[test].reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def transformed(data):
+    """Fitted backbones and their output on the training rows, per backbone class."""
+    X, _, _ = data
+    out = {}
+    for Backbone in (PCCBackbone, PDLBackbone):
+        backbone = Backbone().fit(X)
+        out[Backbone] = (backbone, backbone.transform(X))
+    return out
+
+
+@pytest.fixture(scope="module")
+def run_nominal(data, transformed):
+    """The test run with the backbone columns, per backbone class (calibrated once)."""
+    _, _, X_run = data
+    return {B: backbone.transform(X_run) for B, (backbone, _) in transformed.items()}
+
+
+@pytest.fixture(scope="module")
+def pipelines(data, transformed):
+    """Lazily built fitted pipelines, keyed by (backbone class, residual name, params)."""
+    _, y, _ = data
+    cache = {}
+
+    def get(Backbone, kind, **params):
+        key = (Backbone, kind, tuple(sorted(params.items())))
+        if key not in cache:
+            backbone, Xb = transformed[Backbone]
+            if kind == "none":
+                residual = NoResidual().fit(Xb, y)
+            else:
+                Est = {"mlp": MLPResidual, "gru": GRUResidual}[kind]
+                residual = _tiny(Est, **params).fit(Xb, y)
+            cache[key] = Pipeline([("backbone", backbone), ("residual", residual)])
+        return cache[key]
+
+    return get
+
+
+def _split(X_run):
+    motion = (X_run["phase"] == "motion").to_numpy()
+    return X_run[~motion], X_run.loc[motion, CHANNELS].to_numpy(), motion
+
+
+def _stream(est, samples):
+    return np.array([est.step(*s) for s in samples])
+
+
+def _float64(pipe):
+    """A copy of the pipeline whose network predicts in float64."""
+    pipe64 = copy.deepcopy(pipe)
+    residual = pipe64.steps[-1][1]
+    if hasattr(residual, "module_"):
+        residual.module_.double()
+    return pipe64
+
+
+# ---------------------------------------------------------------------------
+# parity with Pipeline.predict
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Backbone", [PCCBackbone, PDLBackbone])
+@pytest.mark.parametrize(
+    "kind, params",
+    [
+        ("none", {}),
+        ("mlp", {}),
+        ("gru", {}),
+        ("gru", {"frame": "base"}),
+    ],
+    ids=["none", "mlp", "gru", "gru-base-frame"],
+)
+def test_step_matches_predict(data, pipelines, run_nominal, Backbone, kind, params):
+    _, _, X_run = data
+    pipe = pipelines(Backbone, kind, **params)
+    sweep, samples, motion = _split(X_run)
+    tips = _stream(OnlineEstimator(pipe).start(sweep), samples)
+    assert tips.shape == (len(samples), 3)
+    # the residual step of the float64 copy on the backbone's output: its predict
+    Xb_run = run_nominal[Backbone]
+    expected64 = _float64(pipe).steps[-1][1].predict(Xb_run)[motion]
+    assert_allclose(tips, expected64, rtol=0, atol=FLOAT64_TOL_MM)
+    expected = pipe.predict(X_run)[motion]
+    assert_allclose(tips, expected, rtol=0, atol=FLOAT32_TOL_MM)
+    # the float32 step rounds like the trained network: same tolerance
+    tips32 = _stream(OnlineEstimator(pipe, dtype="float32").start(sweep), samples)
+    assert_allclose(tips32, expected, rtol=0, atol=FLOAT32_TOL_MM)
+    if kind != "none":  # the network is not a no-op on these runs
+        nominal = Xb_run[["b_x", "b_y", "b_z"]].to_numpy()[motion]
+        assert np.abs(tips - nominal).max() > 1e-3
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"module__num_layers": 2},
+        {"use_torque": False, "use_context": False},
+        {"clip": 1e-3},
+    ],
+    ids=["two-layers", "no-torque-no-context", "tight-clip"],
+)
+def test_step_matches_predict_for_gru_variants(data, pipelines, run_nominal, params):
+    _, _, X_run = data
+    pipe = pipelines(PDLBackbone, "gru", **params)
+    sweep, samples, motion = _split(X_run)
+    tips = _stream(OnlineEstimator(pipe).start(sweep), samples)
+    expected64 = _float64(pipe)["residual"].predict(run_nominal[PDLBackbone])[motion]
+    assert_allclose(tips, expected64, rtol=0, atol=FLOAT64_TOL_MM)
+
+
+def test_backbone_alone_pipeline(data, transformed):
+    _, _, X_run = data
+    pipe = Pipeline([("backbone", transformed[PDLBackbone][0])])
+    sweep, samples, motion = _split(X_run)
+    tips = _stream(OnlineEstimator(pipe).start(sweep), samples)
+    assert_allclose(tips, pipe.predict(X_run)[motion], rtol=0, atol=FLOAT64_TOL_MM)
+
+
+def test_start_matches_backbone_calibration(data, pipelines):
+    _, _, X_run = data
+    pipe = pipelines(PDLBackbone, "gru")
+    sweep, _, _ = _split(X_run)
+    est = OnlineEstimator(pipe).start(sweep)
+    backbone = pipe["backbone"]
+    backbone.predict(X_run)
+    expected = backbone.calibration_params_[est.run_]
+    assert est.run_ == X_run["run"].iloc[0]
+    assert_allclose(est.backbone_params_.coef, expected.coef)
+    assert est.rotation_.shape == (3, 3)
+    assert_allclose(est.rotation_ @ est.rotation_.T, np.eye(3), atol=1e-12)
+    assert est.context_.shape == (4,)
+    params, nominal = calibrate_sweep(backbone, sweep)
+    assert_allclose(params.coef, expected.coef)
+    assert nominal.shape == (len(sweep), 3)
+    q = sweep[["q1", "q2"]].to_numpy()
+    assert est.q_amplitude_ == pytest.approx(np.linalg.norm(q - est.q_neutral_, axis=1).max())
+    assert est.q_limit_ == pytest.approx(1.25 * est.q_amplitude_)
+
+
+# ---------------------------------------------------------------------------
+# backbone kernels
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("Backbone, tip, Step", [(PCCBackbone, pcc_tip, PCCStep), (PDLBackbone, pdl_tip, PDLStep)])
+def test_backbone_kernels_match_vectorised_backbones(data, transformed, Backbone, tip, Step):
+    _, _, X_run = data
+    sweep, _, _ = _split(X_run)
+    params, _ = calibrate_sweep(transformed[Backbone][0], sweep)
+    q_neutral = params.q0 if Backbone is PCCBackbone else params.q_neutral
+    amplitude = np.abs(sweep[["q1", "q2"]].to_numpy() - q_neutral).max()
+    rng = np.random.default_rng(0)
+    q = q_neutral + rng.uniform(-1.3, 1.3, size=(500, 2)) * amplitude
+    # exactly neutral, exactly on a ray, and far out (closed-form branch of PCC)
+    q = np.vstack([q, q_neutral, q_neutral + [amplitude, 0.0], q[:1] * 5.0])
+    kernel = Step(params)
+    got = np.array([kernel(a, b) for a, b in q])
+    assert_allclose(got, tip(q, params), rtol=0, atol=1e-10)
+
+
+# ---------------------------------------------------------------------------
+# state
+# ---------------------------------------------------------------------------
+def test_reset_restarts_the_motion_sequence(data, pipelines):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
+    first = _stream(est, samples[:50])
+    assert est.n_steps_ == 50
+    est.reset()
+    assert est.n_steps_ == 0
+    assert_allclose(_stream(est, samples[:50]), first, rtol=0, atol=0)
+    # a GRU carries state: the same sample later in the sequence gives another tip
+    est.reset()
+    _stream(est, samples[:20])
+    assert np.abs(est.step(*samples[0]) - first[0]).max() > 0
+
+
+def test_step_out_and_attributes(data, pipelines, run_nominal):
+    _, _, X_run = data
+    sweep, samples, motion = _split(X_run)
+    pipe = pipelines(PCCBackbone, "mlp")
+    est = OnlineEstimator(pipe).start(sweep)
+    buf = np.empty(3)
+    result = est.step(*samples[0], out=buf)
+    assert result is buf
+    nominal = run_nominal[PCCBackbone][["b_x", "b_y", "b_z"]].to_numpy()[motion][0]
+    assert_allclose(est.nominal_, nominal, atol=1e-9)
+    fresh = est.step(*samples[1])
+    assert fresh is not buf and fresh.shape == (3,) and fresh.dtype == np.float64
+
+
+def test_start_leaves_inputs_unchanged(data, pipelines):
+    _, _, X_run = data
+    sweep, _, _ = _split(X_run)
+    sweep_before = sweep.copy()
+    pipe = pipelines(PDLBackbone, "gru")
+    state = {k: v.clone() for k, v in pipe["residual"].module_.state_dict().items()}
+    OnlineEstimator(pipe).start(sweep)
+    pd.testing.assert_frame_equal(sweep, sweep_before)
+    for k, v in pipe["residual"].module_.state_dict().items():
+        assert v.dtype == state[k].dtype and bool((v == state[k]).all())
+
+
+# ---------------------------------------------------------------------------
+# bad input
+# ---------------------------------------------------------------------------
+def test_step_before_start_raises():
+    est = OnlineEstimator(Pipeline([("backbone", PDLBackbone())]))
+    with pytest.raises(NotFittedError, match=r"call start\(sweep\)"):
+        est.step(0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(NotFittedError, match="start"):
+        est.reset()
+
+
+@pytest.mark.parametrize("channel", [0, 1, 2, 3])
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_non_finite_sample_raises_and_keeps_state(data, pipelines, channel, value):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
+    reference = _stream(OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep), samples[:3])
+    est.step(*samples[0])
+    bad = list(samples[1])
+    bad[channel] = value
+    with pytest.raises(ValueError, match=f"non-finite value for {CHANNELS[channel]}"):
+        est.step(*bad)
+    assert est.n_steps_ == 1
+    # the rejected sample left no trace: the next sample continues the sequence
+    assert_allclose(est.step(*samples[1]), reference[1], rtol=0, atol=0)
+
+
+def test_out_of_range_motor_angles(data, pipelines):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = pipelines(PDLBackbone, "none")
+    est = OnlineEstimator(pipe).start(sweep)
+    far = est.q_neutral_ + [1.3 * est.q_limit_, 0.0]
+    with pytest.raises(ValueError, match="out of range.*q_margin"):
+        est.step(far[0], far[1], 0.0, 0.0)
+    loose = OnlineEstimator(pipe, q_margin=None).start(sweep)
+    assert loose.q_limit_ == np.inf
+    assert np.isfinite(loose.step(far[0], far[1], 0.0, 0.0)).all()
+    tight = OnlineEstimator(pipe, q_margin=1.0).start(sweep)
+    assert tight.q_limit_ == pytest.approx(2.0 * est.q_limit_ / 1.25)
+
+
+def test_hold_policy_replaces_bad_channels_by_last_values(data, pipelines):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = pipelines(PDLBackbone, "gru")
+    held = OnlineEstimator(pipe, on_invalid="hold").start(sweep)
+    plain = OnlineEstimator(pipe).start(sweep)
+    for k in range(3):
+        assert_allclose(held.step(*samples[k]), plain.step(*samples[k]), rtol=0, atol=0)
+    # NaN torque: held at the previous torque, the other channels used
+    q1, q2, _, tau2 = samples[3]
+    tip = held.step(q1, q2, np.nan, tau2)
+    assert np.isfinite(tip).all()
+    assert_allclose(tip, plain.step(q1, q2, samples[2][2], tau2), rtol=0, atol=0)
+    # out-of-range angles: both held at the previous angles
+    far = held.q_neutral_ + [2.0 * held.q_limit_, 0.0]
+    tip = held.step(far[0], far[1], *samples[4][2:])
+    assert_allclose(tip, plain.step(q1, q2, *samples[4][2:]), rtol=0, atol=0)
+    assert held.n_held_ == 2 and held.n_steps_ == 5
+
+
+def test_hold_on_the_first_step_uses_the_last_sweep_sample(data, pipelines):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = pipelines(PCCBackbone, "gru")
+    held = OnlineEstimator(pipe, on_invalid="hold").start(sweep)
+    plain = OnlineEstimator(pipe).start(sweep)
+    last = sweep[CHANNELS].to_numpy()[-1]
+    tip = held.step(np.nan, np.nan, np.nan, np.nan)
+    assert_allclose(tip, plain.step(*last), rtol=0, atol=0)
+
+
+def test_step_rejects_non_numbers(data, pipelines):
+    _, _, X_run = data
+    sweep, _, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "none")).start(sweep)
+    with pytest.raises(TypeError, match="four numbers"):
+        est.step("a", 0.0, 0.0, 0.0)
+
+
+def test_start_errors(data, pipelines, transformed):
+    X, y, X_run = data
+    sweep, _, _ = _split(X_run)
+    pipe = pipelines(PDLBackbone, "none")
+    with pytest.raises(ValueError, match="only rows with 'phase' == 'sweep'"):
+        OnlineEstimator(pipe).start(X_run)
+    with pytest.raises(ValueError, match="exactly one run; got 2 runs"):
+        OnlineEstimator(pipe).start(X[X["phase"] == "sweep"])
+    with pytest.raises(TypeError, match="fitted sklearn Pipeline"):
+        OnlineEstimator(PDLBackbone().fit(X)).start(sweep)
+    with pytest.raises(NotFittedError):
+        OnlineEstimator(Pipeline([("backbone", PDLBackbone())])).start(sweep)
+    unfitted = Pipeline([("backbone", transformed[PDLBackbone][0]), ("residual", GRUResidual())])
+    with pytest.raises(NotFittedError, match="GRUResidual of pipeline is not fitted"):
+        OnlineEstimator(unfitted).start(sweep)
+    with pytest.raises(InvalidParameterError, match="dtype"):
+        OnlineEstimator(pipe, dtype="float16").start(sweep)
+    with pytest.raises(InvalidParameterError, match="on_invalid"):
+        OnlineEstimator(pipe, on_invalid="ignore").start(sweep)
+    # a failed start leaves no usable estimator behind
+    est = OnlineEstimator(pipe).start(sweep)
+    with pytest.raises(ValueError, match="exactly one run"):
+        est.start(X[X["phase"] == "sweep"])
+    with pytest.raises(NotFittedError, match="has not been started"):
+        est.step(0.0, 0.0, 0.0, 0.0)
+
+
+# ---------------------------------------------------------------------------
+# detector
+# ---------------------------------------------------------------------------
+class _FakeDetector:
+    """Flags a change when q1 exceeds a threshold; records what it was given."""
+
+    def __init__(self, threshold):
+        self.threshold = threshold
+        self.started_with = None
+        self.samples = []
+
+    def start(self, sweep):
+        self.started_with = sweep
+        return self
+
+    def step(self, q1, q2, tau1, tau2):
+        self.samples.append((q1, q2, tau1, tau2))
+        return q1 > self.threshold
+
+
+def test_detector_is_started_and_stepped_with_the_same_data(data, pipelines):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    threshold = float(np.median(samples[:20, 0]))
+    detector = _FakeDetector(threshold)
+    est = OnlineEstimator(pipelines(PDLBackbone, "none"), detector=detector).start(sweep)
+    assert est.shaft_changed_ is False
+    assert_allclose(detector.started_with[CHANNELS].to_numpy(), sweep[CHANNELS].to_numpy())
+    flags = []
+    for s in samples[:20]:
+        est.step(*s)
+        flags.append(est.shaft_changed_)
+    assert flags == [bool(s[0] > threshold) for s in samples[:20]]
+    assert_allclose(np.array(detector.samples), samples[:20])
+    with pytest.raises(InvalidParameterError, match="detector"):
+        OnlineEstimator(pipelines(PDLBackbone, "none"), detector=object()).start(sweep)
+
+
+def test_no_detector_no_flag(data, pipelines):
+    _, _, X_run = data
+    sweep, _, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "none")).start(sweep)
+    assert not hasattr(est, "shaft_changed_")

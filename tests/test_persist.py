@@ -1,0 +1,244 @@
+"""Tests of saving and loading fitted estimators with their versions (skcath.persist)."""
+
+import copy
+import json
+import pickle
+import warnings
+import zipfile
+
+import joblib
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+from sklearn.base import clone
+from sklearn.pipeline import Pipeline
+
+import skcath
+from skcath import persist
+from skcath.backbones import PCCBackbone, PDLBackbone
+from skcath.datasets import make_benchmark
+from skcath.persist import (
+    IncompatibleVersionError,
+    InconsistentVersionWarning,
+    is_compatible_version,
+)
+from skcath.residuals import GRUResidual, MLPResidual, NoResidual
+
+TINY = {"max_epochs": 1, "module__hidden_size": 8, "window_step": 200, "random_state": 0,
+        "n_threads": 1}
+BACKBONES = {"PCC": PCCBackbone, "PDL": PDLBackbone}
+RESIDUALS = {
+    "none": NoResidual,
+    "MLP": lambda: MLPResidual(**TINY),
+    "GRU": lambda: GRUResidual(**TINY),
+}
+
+
+@pytest.fixture(scope="module")
+def data():
+    """One catheter, one run of each of three shaft settings."""
+    bench = make_benchmark(n_catheters=1, n_runs=1)
+    keep = bench.X["setting"].astype(str).isin(["S01", "S02", "S03"]).to_numpy()
+    return bench.X[keep].reset_index(drop=True), np.asarray(bench.y, dtype=float)[keep]
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    """Fitted backbone+residual pipelines (tiny networks, one epoch) by name."""
+    X, y = data
+    cache = {}
+
+    def get(backbone, residual):
+        if (backbone, residual) not in cache:
+            pipe = Pipeline([("backbone", BACKBONES[backbone]()), ("residual", RESIDUALS[residual]())])
+            cache[backbone, residual] = pipe.fit(X, y)
+        return cache[backbone, residual]
+
+    return get
+
+
+def _set_saved_version(path, version):
+    """Rewrite the skcath version recorded in a saved file."""
+    with zipfile.ZipFile(path) as zf:
+        members = {name: zf.read(name) for name in zf.namelist()}
+    header = json.loads(members["skcath.json"])
+    header["versions"]["skcath"] = version
+    members["skcath.json"] = json.dumps(header).encode()
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, content in members.items():
+            zf.writestr(name, content)
+
+
+@pytest.mark.parametrize("residual", list(RESIDUALS))
+@pytest.mark.parametrize("backbone", list(BACKBONES))
+def test_joblib_round_trip_identical_predictions(data, fitted, tmp_path, backbone, residual):
+    X, _ = data
+    pipe = fitted(backbone, residual)
+    expected = pipe.predict(X)
+    path = tmp_path / "pipe.skcath"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InconsistentVersionWarning)
+        persist.save(pipe, path)
+        loaded = persist.load(path)
+    assert loaded is not pipe
+    assert_array_equal(loaded.predict(X), expected)
+    header = persist.read_versions(path)
+    assert header["format"] == "joblib"
+    assert header["estimator"] == "sklearn.pipeline.Pipeline"
+    assert header["versions"]["skcath"] == skcath.__version__
+    assert header["versions"]["torch"] is not None
+    assert header["versions"]["scikit-learn"] is not None
+
+
+def test_saved_version_mismatch_is_refused(data, fitted, tmp_path):
+    X, _ = data
+    pipe = fitted("PDL", "GRU")
+    path = tmp_path / "pipe.skcath"
+    persist.save(pipe, path)
+    _set_saved_version(path, "0.99.0")
+    with pytest.raises(IncompatibleVersionError, match=r"0\.99\.0.*" + skcath.__version__.replace(".", r"\.")) as info:
+        persist.load(path)
+    assert "allow_version_mismatch=True" in str(info.value)
+    assert "Refit" in str(info.value)
+    with pytest.warns(InconsistentVersionWarning, match="0.99.0") as record:
+        loaded = persist.load(path, allow_version_mismatch=True)
+    assert len(record) == 1  # one warning from load, none from the unpickled estimators
+    assert record[0].message.original_version == "0.99.0"
+    assert record[0].message.current_version == skcath.__version__
+    assert_array_equal(loaded.predict(X), pipe.predict(X))
+
+
+def test_compatible_other_version_loads_with_warning(data, fitted, tmp_path, monkeypatch):
+    X, _ = data
+    pipe = fitted("PCC", "none")
+    path = tmp_path / "pipe.skcath"
+    persist.save(pipe, path)
+    monkeypatch.setattr(skcath, "__version__", "0.1.5")
+    with pytest.warns(InconsistentVersionWarning, match="0.1.5") as record:
+        loaded = persist.load(path)
+    assert len(record) == 1
+    assert_array_equal(loaded.predict(X), pipe.predict(X))
+
+
+@pytest.mark.parametrize(
+    "saved, running, expected",
+    [
+        ("0.1.0.dev0", "0.1.0", True),
+        ("0.1.0", "0.1.3", True),
+        ("0.1.2", "0.2.0", False),
+        ("0.2.0", "0.1.2", False),
+        ("1.2.0", "1.5.1", True),
+        ("1.9.0", "2.0.0", False),
+        ("0.9", "1.0", False),
+        ("2", "2.4rc1", True),
+    ],
+)
+def test_is_compatible_version(saved, running, expected):
+    assert is_compatible_version(saved, running) is expected
+
+
+def test_is_compatible_version_rejects_garbage():
+    with pytest.raises(ValueError, match="cannot parse the skcath version 'abc'"):
+        is_compatible_version("abc", "0.1.0")
+
+
+@pytest.mark.parametrize("residual", ["none", "GRU"])
+def test_plain_pickle_warns_on_other_version(data, fitted, monkeypatch, residual):
+    X, _ = data
+    pipe = fitted("PDL", residual)
+    expected = pipe.predict(X)
+    payload = pickle.dumps(pipe)
+    with warnings.catch_warnings():  # same version: silent
+        warnings.simplefilter("error", InconsistentVersionWarning)
+        same = pickle.loads(payload)
+    assert_array_equal(same.predict(X), expected)
+    assert not hasattr(same["residual"], "_skcath_version")
+    assert not hasattr(same["backbone"], "_skcath_version")
+
+    monkeypatch.setattr(skcath, "__version__", "7.0.0")
+    with pytest.warns(InconsistentVersionWarning) as record:
+        other = pickle.loads(payload)
+    names = sorted(w.message.estimator_name for w in record)
+    assert names == sorted({"none": ["PDLBackbone", "NoResidual"],
+                            "GRU": ["PDLBackbone", "GRUResidual"]}[residual])
+    message = str(record[0].message)
+    assert skcath.__version__ in message and "7.0.0" in message
+    assert_array_equal(other.predict(X), expected)
+
+
+def test_joblib_dump_carries_version(data, fitted, tmp_path, monkeypatch):
+    X, _ = data
+    model = fitted("PDL", "MLP")["residual"]
+    path = tmp_path / "residual.joblib"
+    joblib.dump(model, path)
+    monkeypatch.setattr(skcath, "__version__", "0.0.1")
+    with pytest.warns(InconsistentVersionWarning, match="MLPResidual was pickled with skcath"):
+        loaded = joblib.load(path)
+    Xb = fitted("PDL", "MLP")["backbone"].transform(X)
+    assert_array_equal(loaded.predict(Xb), model.predict(Xb))
+
+
+def test_clone_and_deepcopy_are_silent(fitted):
+    pipe = fitted("PDL", "GRU")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InconsistentVersionWarning)
+        copied = copy.deepcopy(pipe)
+        clone(pipe)
+    assert not hasattr(copied["residual"], "_skcath_version")
+
+
+def test_skops_round_trip_backbones(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    X, y = data
+    backbone_only = Pipeline([("backbone", PDLBackbone())]).fit(X, y)
+    expected = backbone_only.predict(X)
+    # the backbone's per-call diagnostics (a DataFrame) are not storable with skops
+    del backbone_only["backbone"].calibrations_, backbone_only["backbone"].calibration_params_
+    path = tmp_path / "pdl.skcath"
+    persist.save(backbone_only, path, format="skops")
+    untrusted = persist.get_untrusted_types(path)
+    assert untrusted == ["skcath.backbones._backbone.PDLBackbone"]
+    with pytest.raises(Exception, match="Untrusted types"):
+        persist.load(path)
+    loaded = persist.load(path, trusted=untrusted)
+    assert_array_equal(loaded.predict(X), expected)
+
+    pipe = Pipeline([("backbone", PCCBackbone()), ("residual", NoResidual())]).fit(X, y)
+    expected = pipe.predict(X)
+    del pipe["backbone"].calibrations_, pipe["backbone"].calibration_params_
+    persist.save(pipe, path, format="skops")
+    untrusted = persist.get_untrusted_types(path)
+    assert sorted(untrusted) == ["skcath.backbones._backbone.PCCBackbone",
+                                 "skcath.residuals._no_residual.NoResidual"]
+    assert_array_equal(persist.load(path, trusted=untrusted).predict(X), expected)
+
+
+def test_skops_refuses_what_it_cannot_store(fitted, tmp_path):
+    pytest.importorskip("skops")
+    pipe = fitted("PDL", "MLP")
+    with pytest.raises(ValueError, match="format='skops' cannot serialize.*format='joblib'"):
+        persist.save(pipe, tmp_path / "mlp.skcath", format="skops")
+    with pytest.raises(ValueError, match="calibrations_"):
+        persist.save(fitted("PDL", "none"), tmp_path / "pdl.skcath", format="skops")
+
+
+def test_bad_arguments_and_files(fitted, tmp_path):
+    pipe = fitted("PCC", "none")
+    with pytest.raises(ValueError, match="format: expected one of"):
+        persist.save(pipe, tmp_path / "x", format="pickle")
+    with pytest.raises(ValueError, match="compress: expected an int"):
+        persist.save(pipe, tmp_path / "x", compress=12)
+    path = tmp_path / "pipe.skcath"
+    persist.save(pipe, path)
+    with pytest.raises(ValueError, match="trusted: only for skops-format files"):
+        persist.load(path, trusted=["numpy.ndarray"])
+    with pytest.raises(ValueError, match="only the skops format"):
+        persist.get_untrusted_types(path)
+    plain = tmp_path / "plain.joblib"
+    joblib.dump(pipe, plain)
+    with pytest.raises(ValueError, match="not a file written by skcath.persist.save"):
+        persist.load(plain)
+    with zipfile.ZipFile(tmp_path / "other.zip", "w") as zf:
+        zf.writestr("a.txt", "a")
+    with pytest.raises(ValueError, match="has no skcath.json"):
+        persist.load(tmp_path / "other.zip")
