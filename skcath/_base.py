@@ -10,6 +10,7 @@ __all__ = ["RecordingsMixin"]
 
 
 def _current_version():
+    """The running skcath version (imported late: the package imports this module)."""
     from . import __version__
 
     return __version__

@@ -30,6 +30,8 @@ import warnings
 import zipfile
 from importlib import metadata
 
+from ._base import _current_version
+
 __all__ = [
     "FORMATS",
     "InconsistentVersionWarning",
@@ -82,12 +84,6 @@ class IncompatibleVersionError(ValueError):
 
     Raised by :func:`load`; ``allow_version_mismatch=True`` loads the file anyway.
     """
-
-
-def _current_version() -> str:
-    from . import __version__
-
-    return __version__
 
 
 def _release(version: str) -> tuple[int, int]:

@@ -671,9 +671,10 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
             f"(ref_x, ref_y, ref_z); expected at least "
             f"{_MIN_REFERENCE_RANGE_MM:g} mm while the motors sweep "
             f"{rays.amplitude:.1f} deg. Is the EM tip sensor attached and read? "
-            "Reference positions must be in mm; if they are in metres, multiply "
-            "them by 1000 (read_recording: scale={'ref_x': 1000.0, 'ref_y': "
-            "1000.0, 'ref_z': 1000.0})."
+            "Positions must be in mm; if they are in metres, multiply every position "
+            "by 1000: the references and the target alike (read_recording: "
+            "scale={...: 1000.0} for each position column the file has, ref_x/y/z, "
+            "p_x/y/z or tip_px.../base_px...)."
         )
 
 

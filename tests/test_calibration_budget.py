@@ -301,6 +301,19 @@ def test_learned_budgets_with_a_tiny_schedule(bench):
     assert "schedule 'tiny'" in text and "catheters C1" in text and "PDL+GRU" in text
 
 
+def test_learned_budgets_on_a_sweep_of_four_rays(bench):
+    """Recordings whose sweep has 4 rays: the full-sweep backbone of training uses 4 too."""
+    from skcath.protocol import run_calibration_budget
+    from skcath.sweep import reduce_sweep
+
+    X4, y4 = reduce_sweep(*bench, n_rays=4)  # every other ray: an even 4-ray layout
+    result = run_calibration_budget(
+        X4, y4, rays=(3,), strides=(20,), n_rays_swept=4, schedule=_tiny_schedule(),
+        catheters=["C1"], exclude_settings=["S00"], n_jobs=1,
+    )
+    assert np.isfinite(result.summary[["PCC", "PDL", "PDL+GRU"]].to_numpy()).all()
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [

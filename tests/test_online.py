@@ -411,13 +411,16 @@ def test_detector_is_started_and_stepped_with_the_same_data(data, pipelines):
     detector = _FakeDetector(threshold)
     est = OnlineEstimator(pipelines(PDLBackbone, "none"), detector=detector).start(sweep)
     assert est.shaft_changed_ is False
-    assert_allclose(detector.started_with[CHANNELS].to_numpy(), sweep[CHANNELS].to_numpy())
+    assert detector.started_with is None and detector.samples == []  # left as given
+    started = est.detector_
+    assert_allclose(started.started_with[CHANNELS].to_numpy(), sweep[CHANNELS].to_numpy())
     flags = []
     for s in samples[:20]:
         est.step(*s)
         flags.append(est.shaft_changed_)
     assert flags == [bool(s[0] > threshold) for s in samples[:20]]
-    assert_allclose(np.array(detector.samples), samples[:20])
+    assert_allclose(np.array(started.samples), samples[:20])
+    assert detector.samples == []
     with pytest.raises(InvalidParameterError, match="detector"):
         OnlineEstimator(pipelines(PDLBackbone, "none"), detector=object()).start(sweep)
 
@@ -427,3 +430,17 @@ def test_no_detector_no_flag(data, pipelines):
     sweep, _, _ = _split(X_run)
     est = OnlineEstimator(pipelines(PDLBackbone, "none")).start(sweep)
     assert not hasattr(est, "shaft_changed_")
+
+
+def test_bad_out_is_refused_before_the_state_moves(data, pipelines):
+    """A wrong ``out`` raises a clear error and leaves the estimator as it was."""
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
+    reference = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
+    for bad in (np.empty(2), np.empty(3, dtype=np.float32), [0.0, 0.0, 0.0]):
+        with pytest.raises(ValueError, match="out must be a writeable float64 array of shape"):
+            est.step(*samples[0], out=bad)
+    assert est.n_steps_ == 0
+    for s in samples[:5]:
+        assert_allclose(est.step(*s), reference.step(*s), rtol=0, atol=0)

@@ -6,6 +6,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
+from skcath import check_recordings
 from skcath._format import REQUIRED_COLUMNS
 from skcath.frames import tip_in_base_frame
 from skcath.io import (
@@ -330,7 +331,7 @@ PATTERN = r"(?P<catheter>[^_]+)_(?P<setting>[^_]+)_run(?P<run>\d+)"
 
 
 def test_read_recordings_from_file_names(tmp_path):
-    names = ["A_slow_run1.csv", "A_slow_run2.csv", "B_fast_run1.csv"]
+    names = ["A_slow_run1.csv", "A_slow_run2.csv", "B_fast_run3.csv"]
     frames = [_recording_file(tmp_path / name, seed=i) for i, name in enumerate(names)]
     (tmp_path / "notes.txt").write_text("not a recording")
 
@@ -338,7 +339,8 @@ def test_read_recordings_from_file_names(tmp_path):
     assert len(X) == 36 and y.shape == (36, 3)
     assert list(X.columns) == list(REQUIRED_COLUMNS)
     runs = X[["catheter", "setting", "run"]].drop_duplicates().values.tolist()
-    assert runs == [["A", "slow", "1"], ["A", "slow", "2"], ["B", "fast", "1"]]
+    assert runs == [["A", "slow", "1"], ["A", "slow", "2"], ["B", "fast", "3"]]
+    check_recordings(X, y)  # the joined table is valid recordings
     assert_allclose(y, np.concatenate([f[["p_x", "p_y", "p_z"]].to_numpy() for f in frames]))
     for name in names:  # same as reading the files one by one
         cat, setting, run = name[:-4].replace("run", "").split("_")
@@ -362,7 +364,7 @@ def test_read_recordings_manifest(tmp_path):
             "path": ["data/first.csv", "data/second.csv"],
             "catheter": ["A", "A"],
             "setting": ["s1", "s2"],
-            "run": [1, 1],
+            "run": [1, 2],
             "n_sweep": [4, 6],
         }
     )
@@ -397,7 +399,7 @@ def test_read_recordings_errors(tmp_path):
         read_recordings(tmp_path, pattern=PATTERN, n_sweep=4, progress=False)
     with pytest.raises(ValueError, match=r"unknown group\(s\) \['speed'\]"):
         read_recordings(tmp_path, pattern=r"(?P<speed>.*)", progress=False)
-    with pytest.raises(ValueError, match=r"run ids must be unique across files"):
+    with pytest.raises(ValueError, match=r"a run id must be unique across all files"):
         read_recordings(tmp_path, catheter="A", setting="s", run=1, n_sweep=4, progress=False)
     with pytest.raises(ValueError, match=r"\['catheter'\] given both"):
         read_recordings(
@@ -559,3 +561,26 @@ def test_read_rosbag_errors(tmp_path):
         read_rosbag(path, {**CONFIG, "camera": "/cam"}, **kwargs)
     with pytest.raises(ValueError, match=r"config needs the key 'tip'"):
         read_rosbag(path, {k: v for k, v in CONFIG.items() if k != "tip"}, **kwargs)
+
+
+def test_read_recordings_refuses_a_run_id_in_two_files(tmp_path):
+    """Run ids are unique across catheters and settings: a clash names both files."""
+    _recording_file(tmp_path / "A_S01_run1.csv")
+    _recording_file(tmp_path / "B_S01_run1.csv", seed=1)
+    with pytest.raises(ValueError, match=r"run id '1' is in both 'A_S01_run1.csv' and 'B_S01_run1.csv'"):
+        read_recordings(tmp_path, pattern=PATTERN, n_sweep=4, progress=False)
+    # a run group that spans the catheter and the setting gives unique ids
+    spanning = r"(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_run\d+)"
+    X, y = read_recordings(tmp_path, pattern=spanning, n_sweep=4, progress=False)
+    assert sorted(X["run"].astype(str).unique()) == ["A_S01_run1", "B_S01_run1"]
+
+
+def test_read_recordings_manifest_with_an_empty_id_cell(tmp_path):
+    """A blank cell turns an integer column into floats; whole numbers are read back as ints."""
+    _recording_file(tmp_path / "first.csv")
+    _recording_file(tmp_path / "second.csv", seed=1)
+    (tmp_path / "manifest.csv").write_text(
+        "path,catheter,setting,run,n_sweep\nfirst.csv,A,s1,7,4\nsecond.csv,A,s2,,4\n"
+    )
+    X, _ = read_recordings(manifest=tmp_path / "manifest.csv", progress=False)
+    assert "7" in set(X["run"].astype(str))

@@ -34,7 +34,9 @@ def _calibrate_run(backbone, run, q, ref, sweep):
     """Calibrate one run on its sweep rows and evaluate it on all its rows."""
     q_sweep, ref_sweep = q[sweep], ref[sweep]
     rays = find_rays(
-        q_sweep, n_rays=backbone.n_rays, run=run, ray_spacing_deg=backbone.ray_spacing_deg
+        q_sweep, n_rays=backbone.n_rays, run=run,
+        # absent from backbones pickled before the parameter existed
+        ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
     )
     check_sweep_references(ref_sweep, rays, run=run)
     params, info = backbone._calibrate(q_sweep, ref_sweep, rays)

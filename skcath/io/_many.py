@@ -15,6 +15,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from .._format import CATHETER, ID_COLUMNS, RUN, SETTING
+from .._validation import check_recordings
 from ._recording import (
     _CSV_SUFFIXES,
     _OPTION_NAMES,
@@ -27,6 +28,10 @@ __all__ = ["read_recordings"]
 
 #: Manifest columns that are not read options.
 _MANIFEST_PATH = "path"
+
+#: Options a manifest may hold as whole numbers, read back as floats when the
+#: column has an empty cell.
+_INTEGER_OPTIONS = ("n_sweep", CATHETER, SETTING, RUN)
 
 
 def _is_table(path):
@@ -143,8 +148,8 @@ def _read_manifest(manifest):
                 continue  # an empty cell: option not given for this file
             if isinstance(value, (np.integer, np.floating)):
                 value = value.item()
-            if key == "n_sweep" and isinstance(value, float) and value.is_integer():
-                value = int(value)
+            if key in _INTEGER_OPTIONS and isinstance(value, float) and value.is_integer():
+                value = int(value)  # a column with an empty cell is read as floats
             options[key] = value
         jobs.append((path, options))
     if not jobs:
@@ -254,15 +259,17 @@ def read_recordings(
                 "manifest) and as a keyword argument for all files; give one or the other."
             )
         X, y = read_recording(path, **options, **read_kwargs)
-        runs = X[[CATHETER, SETTING, RUN]].drop_duplicates()
-        for ids in runs.itertuples(index=False, name=None):
-            if ids in owner:
+        for run in pd.unique(X[RUN].astype(str)):
+            if run in owner:
                 raise ValueError(
-                    f"the run (catheter, setting, run) = {ids!r} is in both "
-                    f"{owner[ids]!r} and {path.name!r}; run ids must be unique across files."
+                    f"the run id {run!r} is in both {owner[run]!r} and {path.name!r}; a run id "
+                    "must be unique across all files (across catheters and settings too). Give "
+                    "each file its own run id, e.g. a pattern whose run group spans the "
+                    "catheter and setting, r'(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_r\\d+)', "
+                    "or a manifest 'run' column."
                 )
-            owner[ids] = path.name
+            owner[run] = path.name
         frames.append(X)
         targets.append(y)
-    X = pd.concat(frames, ignore_index=True)
-    return X, np.concatenate(targets, axis=0)
+    # the joined table must be valid recordings as a whole, as every reader's output is
+    return check_recordings(pd.concat(frames, ignore_index=True), np.concatenate(targets, axis=0))

@@ -255,10 +255,11 @@ class OnlineEstimator(BaseEstimator):
         backbone is calibrated within the amplitude and extrapolates
         beyond). None accepts any finite angle.
     detector : object or None, default=None
-        Optional change detector with ``start(sweep)`` and
-        ``step(q1, q2, tau1, tau2) -> bool``. It is started by :meth:`start`
-        with the same sweep and stepped by :meth:`step` with the same
-        (accepted) sample; its last answer is ``shaft_changed_``.
+        Optional change detector with ``start(sweep)`` (returning the
+        started detector) and ``step(q1, q2, tau1, tau2) -> bool``. A copy of
+        it, ``detector_``, is started by :meth:`start` with the same sweep
+        and stepped by :meth:`step` with the same (accepted) sample; its last
+        answer is ``shaft_changed_``. The object passed is never changed.
 
     Attributes
     ----------
@@ -285,8 +286,10 @@ class OnlineEstimator(BaseEstimator):
         Of those, samples that had a value replaced (``on_invalid="hold"``).
     nominal_ : ndarray of shape (3,)
         Nominal (backbone) tip of the last step (mm).
+    detector_ : object
+        The started copy of ``detector`` (only with a detector).
     shaft_changed_ : bool
-        Last answer of ``detector`` (only with a detector).
+        Last answer of ``detector_`` (only with a detector).
 
     See Also
     --------
@@ -379,7 +382,8 @@ class OnlineEstimator(BaseEstimator):
         self._limit2 = self.q_limit_ * self.q_limit_
         self.nominal_ = np.zeros(3)
         if self.detector is not None:
-            self.detector.start(X)
+            # a copy: the parameter stays as given, and two estimators never share state
+            self.detector_ = copy.deepcopy(self.detector).start(X)
             self.shaft_changed_ = False
         self._started = True
         return self.reset()
@@ -476,14 +480,20 @@ class OnlineEstimator(BaseEstimator):
         if not (d1 - d1 + d2 - d2 + tau1 - tau1 + tau2 - tau2 == 0.0
                 and d1 * d1 + d2 * d2 <= self._limit2):
             q1, q2, tau1, tau2 = self._accept([q1, q2, tau1, tau2])
+        if out is None:
+            out = np.empty(3)
+        elif not (type(out) is np.ndarray and out.shape == (3,) and out.dtype == np.float64
+                  and out.flags.writeable):
+            raise ValueError(
+                "out must be a writeable float64 array of shape (3,); got "
+                f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
+            )
         last = self._last
         dq1, dq2 = q1 - last[0], q2 - last[1]
         last[0], last[1], last[2], last[3] = q1, q2, tau1, tau2
         bx, by, bz = self._backbone(q1, q2)
         nominal = self.nominal_
         nominal[0], nominal[1], nominal[2] = bx, by, bz
-        if out is None:
-            out = np.empty(3)
         kernel = self._kernel
         if kernel is None:
             out[0], out[1], out[2] = bx, by, bz
@@ -501,5 +511,5 @@ class OnlineEstimator(BaseEstimator):
             out[2] = min(max(e2, -c), c) + bz
         self.n_steps_ += 1
         if self.detector is not None:
-            self.shaft_changed_ = bool(self.detector.step(q1, q2, tau1, tau2))
+            self.shaft_changed_ = bool(self.detector_.step(q1, q2, tau1, tau2))
         return out

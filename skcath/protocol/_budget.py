@@ -254,7 +254,8 @@ def run_calibration_budget(
 
     if learned:
         records += _learned_records(
-            X, y, budgets, reduced, schedule, exclude, evaluated_catheters, n_jobs, verbose
+            X, y, budgets, reduced, schedule, exclude, evaluated_catheters, n_jobs, verbose,
+            n_rays_swept,
         )
 
     run_info = X_eval[[fmt.RUN, fmt.CATHETER, fmt.SETTING]].astype(str).drop_duplicates(fmt.RUN)
@@ -289,9 +290,12 @@ def run_calibration_budget(
     )
 
 
-def _learned_records(X, y, budgets, reduced, schedule, exclude, catheters, n_jobs, verbose):
+def _learned_records(
+    X, y, budgets, reduced, schedule, exclude, catheters, n_jobs, verbose, n_rays_swept
+):
     """Per-run RMSE of PDL+GRU trained on full sweeps, for every budget and seed."""
-    Xb = PDLBackbone(n_jobs=n_jobs).fit(X).transform(X)[list(_LEARNER_COLUMNS)]
+    full = PDLBackbone(n_rays=n_rays_swept, n_jobs=n_jobs)
+    Xb = full.fit(X).transform(X)[list(_LEARNER_COLUMNS)]
     loco = LeaveOneCatheterOut(exclude_settings=exclude)
     if schedule.n_setting_folds is None:
         within = LeaveOneSettingOut(exclude_settings=exclude)

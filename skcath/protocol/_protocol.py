@@ -67,13 +67,10 @@ def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
     (Ray's) returns them all at the end instead, which changes nothing
     downstream (every result carries its key) but the progress bar.
     """
-    for return_as in ("generator_unordered", "generator", "list"):
-        try:
-            parallel = Parallel(n_jobs=n_jobs, return_as=return_as, max_nbytes=None)
-            break
-        except ValueError:  # the active backend cannot return results this way
-            if return_as == "list":
-                raise
+    try:
+        parallel = Parallel(n_jobs=n_jobs, return_as="generator_unordered", max_nbytes=None)
+    except ValueError:  # the active backend cannot return results as they finish
+        parallel = Parallel(n_jobs=n_jobs, return_as="list", max_nbytes=None)
     results = parallel(tasks)
     bar = tqdm(total=n_tasks, desc=desc, unit="model", disable=not verbose, dynamic_ncols=True)
     out = []
