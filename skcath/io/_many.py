@@ -89,7 +89,7 @@ def _check_pattern(pattern):
     if not regex.groupindex or unknown:
         raise ValueError(
             f"pattern must have named groups among {list(ID_COLUMNS)}, e.g. "
-            r"'(?P<catheter>[^_]+)_(?P<setting>[^_]+)_(?P<run>\d+)'; got "
+            r"'(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_r\d+)'; got "
             f"{pattern!r}" + (f" with the unknown group(s) {sorted(unknown)}." if unknown else ".")
         )
     return regex
@@ -177,10 +177,12 @@ def read_recordings(
         Regular expression matched against the whole file name without its
         suffix (:func:`re.fullmatch`), whose named groups ``catheter``,
         ``setting`` and/or ``run`` give the ids of the file, e.g.
-        ``r"(?P<catheter>[^_]+)_(?P<setting>[^_]+)_run(?P<run>\\d+)"`` for
-        ``A_slow_run3.csv``. Ids are strings. Without ``pattern``, ids come
-        from the files themselves or ``read_kwargs`` (``run`` defaults to the
-        file name).
+        ``r"(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_run\\d+)"`` for
+        ``A_slow_run3.csv`` (run ``A_slow_run3``). Ids are strings. A run id
+        must be unique across all files, so a run group that is only a
+        repeat number (``_run(?P<run>\\d+)``) works only when no number
+        repeats. Without ``pattern``, ids come from the files themselves or
+        ``read_kwargs`` (``run`` defaults to the file name).
     manifest : str, path-like or pandas.DataFrame, default=None
         Instead of ``source``: a table (CSV file, or a DataFrame) with a
         ``path`` column (relative to the manifest file's folder, or to the
@@ -217,7 +219,7 @@ def read_recordings(
 
         X, y = read_recordings(
             "recordings/",
-            pattern=r"(?P<catheter>[^_]+)_(?P<setting>[^_]+)_(?P<run>\\d+)",
+            pattern=r"(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_r\\d+)",
             n_sweep=200,
         )
     """
