@@ -20,6 +20,7 @@ from skcath.datasets import make_benchmark
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording
 from skcath.sweep import find_rays
+from test_validation import make_recordings
 
 REFERENCE = ["ref_x", "ref_y", "ref_z"]
 TARGET = ["p_x", "p_y", "p_z"]
@@ -30,34 +31,7 @@ TARGET = ["p_x", "p_y", "p_z"]
 # ---------------------------------------------------------------------------
 def tiny_recordings(n_runs=2, n_sweep=4, n_motion=5, seed=0):
     """Small valid recordings: runs ``r0, r1, ...`` one after another, labels from 100."""
-    rng = np.random.default_rng(seed)
-    frames = []
-    for k in range(n_runs):
-        n = n_sweep + n_motion
-        sweep = np.arange(n) < n_sweep
-        ref = rng.normal(size=(n, 3))
-        ref[~sweep] = np.nan
-        frames.append(
-            pd.DataFrame(
-                {
-                    "catheter": f"c{k}",
-                    "setting": f"s{k}",
-                    "run": f"r{k}",
-                    "t": 0.1 * np.arange(n),
-                    "phase": np.where(sweep, "sweep", "motion"),
-                    "q1": rng.normal(size=n),
-                    "q2": rng.normal(size=n),
-                    "tau1": rng.normal(size=n),
-                    "tau2": rng.normal(size=n),
-                    "ref_x": ref[:, 0],
-                    "ref_y": ref[:, 1],
-                    "ref_z": ref[:, 2],
-                }
-            )
-        )
-    X = pd.concat(frames, ignore_index=True)
-    X.index = pd.RangeIndex(100, 100 + len(X))
-    return X, rng.normal(size=(len(X), 3))
+    return make_recordings(n_runs=n_runs, n_sweep=n_sweep, n_motion=n_motion, seed=seed)
 
 
 @pytest.fixture(scope="module")
@@ -280,7 +254,7 @@ REJECTED = [
                  id="non-monotonic-time"),
     pytest.param("tiny", _repeat_time, "check", ValueError,
                  r"Column 't' must be strictly increasing within each run.*run 'r1' "
-                 r"goes from t=0\.4 s .* to t=0\.4 s", id="duplicated-timestamp"),
+                 r"goes from t=0\.54 s .* to t=0\.54 s", id="duplicated-timestamp"),
     # --- ids and phases ---
     pytest.param("tiny", _reuse_run_id("catheter"), "check", ValueError,
                  r"Run id 'r1' is used for several catheters .*exactly one catheter",
