@@ -300,16 +300,18 @@ plt.show()
 # %%
 # The friction in the sheath grows with the capstan wrap of the tendons, so
 # the loop widens **in motor degrees** from the straight shaft to the high
-# bend, by about 1 degree per level on average (small against the spread of
-# the single rays), and the torque gap grows with it. The torque gap also
-# depends strongly on the unit: the two clusters of runs are the two
-# catheters, and it grows with the wrap in each. The gap **in millimetres**
-# does not grow: the same friction also compresses the transmission of a
-# bent shaft (the friction elements lag further behind the motor, and the
-# tendons lose part of their pull), so each motor degree moves the tip less,
-# as the shrinking tip excursion of a ray shows (``excursion_mm``), and the
-# wider backlash gives no wider gap at the tip. To see hysteresis grow with
-# the shaft bend, measure it in motor degrees or in torque.
+# bend, by about 4.5 degrees per level on average: the no-load play of each
+# tendon pair scales with the pair's own wrap (simulator version 5). The
+# torque gap depends strongly on the unit (the two clusters of runs are the
+# two catheters) and changes little with the level: a wide no-load play
+# leaves part of the friction elements between their branches, so the
+# friction utilisation swings less on a ray. The gap **in millimetres**
+# does not grow either: the same friction also compresses the transmission
+# of a bent shaft (the friction elements lag further behind the motor, and
+# the tendons lose part of their pull), so each motor degree moves the tip
+# less, as the shrinking tip excursion of a ray shows (``excursion_mm``), and
+# the wider backlash gives no wider gap at the tip. To see hysteresis grow
+# with the shaft bend, measure it in motor degrees.
 #
 # Within a level, part of the spread of the single rays comes from their
 # direction: a diagonal ray moves both motors, so both tendon pairs must

@@ -121,7 +121,8 @@ class Catheter:
     mu : float
         Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
     play_w0, play_growth_base, play_growth_scale, play_asym : float
-        Play width at zero load (deg); growth of the width with load,
+        Play width at zero load and one radian of wrap (deg; it scales
+        with each tendon pair's wrap, see :func:`configure`); growth of the width with load,
         ``base + scale (1 - exp(-mu Theta))`` (deg/deg); and the
         unloading/loading width ratio.
     bw_kappa : float
@@ -312,6 +313,12 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
     )
 
 
+#: Share of the no-load play width that does not scale with the wrap: the
+#: width of axis ``i`` is ``play_w0 (f + (1 - f) Theta_i)`` with ``Theta_i``
+#: in rad, so ``play_w0`` is the width at one radian of wrap.
+PLAY_FLOOR = 0.2
+
+
 def configure(catheter, setting):
     """Parameters of a catheter in a shaft setting (before per-run variation).
 
@@ -322,6 +329,10 @@ def configure(catheter, setting):
       2(beta - az_i))``: the pair bent in its own plane rubs harder;
     * play growth ``a_i = base + scale (1 - exp(-mu Theta_i))`` (capstan friction)
       and a dead zone ``d0 + d1 Theta_i`` (slack of the tendon pair);
+    * no-load play width ``w0 (0.2 + 0.8 Theta_i)``: the pretension presses
+      the tendon on the sheath along the whole wrap, so the stick band the
+      motor must cross before a reversal reaches the tip grows with the
+      pair's own wrap (simulator version 5);
     * gains: capstan loss ``1 - loss (1 - exp(-mu Theta))`` for all tendons,
       and a path-length change ``1 + shift Theta cos(beta - az_tendon)`` for
       the tendon at azimuth ``az_tendon``;
@@ -359,7 +370,7 @@ def configure(catheter, setting):
             c.route_phases[2],
         ]),
         "windup": c.windup * (1.0 + theta * bent / np.pi),
-        "w0": c.play_w0,
+        "w0": c.play_w0 * (PLAY_FLOOR + (1.0 - PLAY_FLOOR) * axis_wrap),
         "growth": c.play_growth_base + c.play_growth_scale * axis_capstan,
         "dead_zone": c.dead_zone0 + c.dead_zone_growth * axis_wrap,
         "capstan_exponent": c.mu * axis_wrap,

@@ -32,7 +32,7 @@ RUN_VARIATION = {
     "offset_jitter_deg": 0.4,
     "offset_drift_deg": 1.2,
     "offset_drift_tau_s": 150.0,
-    "gain_drift": 0.10,
+    "gain_drift": 0.03,
     "gain_drift_tau_s": 300.0,
     "base_position_mm": 2.0,
     "base_rotation_deg": 2.0,
@@ -154,7 +154,7 @@ def _transmission_params(specs, configs):
 
     cats = [s.catheter for s in specs]
     return {
-        "w0": col([c["w0"] for c in configs]),
+        "w0": np.array([np.broadcast_to(c["w0"], 2) for c in configs], dtype=float),
         "growth": np.array([c["growth"] for c in configs], dtype=float),
         "asym": col([c.play_asym for c in cats]),
         "cross_load": col([c.cross_load for c in cats]),
