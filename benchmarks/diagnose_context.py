@@ -59,9 +59,8 @@ from sklearn.preprocessing import StandardScaler
 import skcath.datasets._simulator as _simulator
 from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
 from skcath.datasets import make_benchmark
-from skcath.datasets._benchmark import benchmark_specs
+from skcath.datasets._benchmark import _benchmark_field, benchmark_specs
 from skcath.datasets._catheter import configure
-from skcath.datasets._sensors import DistortionField
 from skcath.metrics import mean_per_run_rmse
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual
@@ -291,9 +290,8 @@ def simulate_catheter(catheter, **changes):
     same seeds, same field distortion.
     """
     specs = [s for s in benchmark_specs() if s.catheter.name == catheter]
-    field = DistortionField(np.random.SeedSequence([0, 10**6]))
     with run_variation(**changes):
-        return _simulator.simulate_runs(specs, field=field)
+        return _simulator.simulate_runs(specs, field=_benchmark_field())
 
 
 def drift_floor(catheter, epochs, seed):

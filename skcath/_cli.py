@@ -681,14 +681,6 @@ def _run_calibration_budget(args: argparse.Namespace, parser: argparse.ArgumentP
 
     if args.n_jobs == 0:
         parser.error("argument --n-jobs: expected a positive number of jobs or -1 (all cores), got 0")
-    if args.n_rays_swept < 3:
-        parser.error(f"argument --n-rays-swept: expected at least 3 rays, got {args.n_rays_swept}")
-    bad = [n for n in args.rays if not 3 <= n <= args.n_rays_swept]
-    if bad:
-        parser.error(
-            f"argument --rays: expected numbers of rays from 3 to --n-rays-swept={args.n_rays_swept}, "
-            f"got {bad} (the backbones need at least 3 rays)"
-        )
     schedule = protocol.QUICK if args.schedule == "quick" else protocol.FULL
     if args.seeds is not None:
         schedule = dataclasses.replace(schedule, seeds=tuple(dict.fromkeys(args.seeds)))

@@ -227,18 +227,31 @@ def _check_finite(
     )
 
 
-def _check_magnitude(X: pd.DataFrame, column: str, values: np.ndarray) -> None:
-    """Raise if finite ``values`` exceed :data:`MAX_ABS_VALUE` in magnitude."""
+def _check_magnitude(values: np.ndarray, name: str, locate, expected: str) -> None:
+    """Raise if finite ``values`` exceed :data:`MAX_ABS_VALUE` in magnitude.
+
+    Parameters
+    ----------
+    values : ndarray
+        Values of a recording column (1-D) or of the target (2-D).
+    name : str
+        What holds the values, starting the message (``"Column 'q1'"``, ``"y"``).
+    locate : callable
+        Called with the index of the first offending value (one integer per
+        dimension of ``values``); returns where it is, e.g. ``"at row position 3"``.
+    expected : str
+        The values expected, with their units.
+    """
     with np.errstate(invalid="ignore"):
         bad = np.abs(values) > MAX_ABS_VALUE
     if not bad.any():
         return
-    first = int(np.flatnonzero(bad)[0])
+    first = tuple(int(i) for i in np.argwhere(bad)[0])
     raise ValueError(
-        f"Column {column!r} contains {int(bad.sum())} value(s) larger than "
-        f"{MAX_ABS_VALUE:g} in magnitude; first {_plain(values[first])!r} at "
-        f"{_where(X, first)}. Expected physical values in the units of {_DOCS} "
-        "(degrees, s, mm); is it a logger fill value or a unit mix-up?"
+        f"{name} contains {int(bad.sum())} value(s) larger than "
+        f"{MAX_ABS_VALUE:g} in magnitude; first {_plain(values[first])!r} "
+        f"{locate(*first)}. Expected {expected}; is it a logger fill value or a "
+        "unit mix-up?"
     )
 
 
@@ -554,16 +567,12 @@ def check_target(y, n_rows: int) -> np.ndarray:
             f"{TARGET_NAMES[col]!r} at row position {row}. NaN marks a tracker "
             "dropout and is allowed, +-inf is not."
         )
-    with np.errstate(invalid="ignore"):
-        huge = np.abs(values) > MAX_ABS_VALUE
-    if huge.any():
-        row, col = (int(i) for i in np.argwhere(huge)[0])
-        raise ValueError(
-            f"y contains {int(huge.sum())} value(s) larger than {MAX_ABS_VALUE:g} "
-            f"in magnitude; first {_plain(values[row, col])!r} in column "
-            f"{TARGET_NAMES[col]!r} at row position {row}. Expected tip positions "
-            "in mm; is it a logger fill value or a unit mix-up?"
-        )
+    _check_magnitude(
+        values,
+        "y",
+        lambda row, col: f"in column {TARGET_NAMES[col]!r} at row position {row}",
+        "tip positions in mm",
+    )
     return values
 
 
@@ -671,7 +680,12 @@ def check_recordings(
         if column in required:
             values = _column_as_float(X, column)
             _check_finite(X, column, values, allow_nan=column not in FINITE_COLUMNS)
-            _check_magnitude(X, column, values)
+            _check_magnitude(
+                values,
+                f"Column {column!r}",
+                lambda position: f"at {_where(X, position)}",
+                f"physical values in the units of {_DOCS} (degrees, s, mm)",
+            )
             converted[column] = values
 
     order = None

@@ -318,7 +318,7 @@ def test_learned_budgets_on_a_sweep_of_four_rays(bench):
     "kwargs, message",
     [
         ({"rays": (2,)}, "rays must hold integers from 3 to 8"),
-        ({"rays": (9,)}, "rays must hold integers from 3 to 8"),
+        ({"rays": (9,)}, r"rays must hold integers from 3 to 8 \(.*n_rays_swept=8 has no more\)"),
         ({"strides": (0,)}, "strides must hold integers from 1"),
         ({"catheters": ["C9"]}, "catheters must name catheters"),
         ({"n_rays_swept": 2}, "n_rays_swept must be an integer of at least 3"),
@@ -396,7 +396,10 @@ def test_command_trains_the_quick_schedule(csv_path, tmp_path, monkeypatch, caps
 @pytest.mark.parametrize(
     "extra, message",
     [
-        (["--rays", "2"], "--rays: expected numbers of rays from 3"),
+        # range errors come from run_calibration_budget, reported as usage errors
+        (["--rays", "2"], "rays must hold integers from 3 to 8 (the backbones need at least 3 rays"),
+        (["--rays", "8", "--n-rays-swept", "6"], "rays must hold integers from 3 to 6"),
+        (["--n-rays-swept", "2"], "n_rays_swept must be an integer of at least 3; got 2"),
         (["--rays", "0"], "--rays: expected a positive integer"),
         (["--strides", "0"], "--strides: expected a positive integer"),
         (["--n-jobs", "0"], "--n-jobs: expected a positive number"),

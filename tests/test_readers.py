@@ -411,6 +411,17 @@ def test_read_recordings_errors(tmp_path):
         read_recordings(tmp_path, nsweep=4, progress=False)
 
 
+def test_folder_lists_the_files_read_recording_accepts(tmp_path):
+    from skcath.io._many import _files_of
+
+    for name in ("a.csv", "B.CSV.GZ", "c.parquet", ".csv", "notes.txt", "d.csv.tar"):
+        (tmp_path / name).write_text("")
+    (tmp_path / "e.csv").mkdir()  # a folder, whatever its name
+    expected = ["B.CSV.GZ", "a.csv", "c.parquet"]
+    assert [p.name for p in _files_of(tmp_path)] == expected
+    assert [p.name for p in _files_of(str(tmp_path / "*"))] == expected
+
+
 # ---------------------------------------------------------------------------
 # ROS bags
 # ---------------------------------------------------------------------------

@@ -97,6 +97,17 @@ def benchmark_specs(n_catheters=4, n_runs=3, random_state=0, shaft_change=False)
     return specs
 
 
+def _benchmark_field(random_state=0):
+    """The tracker's field distortion of the benchmark drawn with ``random_state``.
+
+    Its seed differs from those of the catheters and runs
+    (:func:`benchmark_specs`) and depends on ``random_state`` only, so every
+    benchmark of one ``random_state`` shares the field, whatever its numbers
+    of catheters and runs.
+    """
+    return DistortionField(np.random.SeedSequence([random_state, 10**6]))
+
+
 def make_benchmark(
     n_catheters=4,
     n_runs=3,
@@ -214,8 +225,7 @@ def make_benchmark(
 
     start = time.perf_counter()
     specs = benchmark_specs(n_catheters, n_runs, random_state, bool(shaft_change))
-    field = DistortionField(np.random.SeedSequence([random_state, 10**6]))
-    bunch = simulate_runs(specs, mechanism=mechanism, field=field)
+    bunch = simulate_runs(specs, mechanism=mechanism, field=_benchmark_field(random_state))
     cats = {s.catheter.name: s.catheter for s in specs}
     bunch.catheters = {name: c.to_dict() for name, c in cats.items()}
     bunch.key = key

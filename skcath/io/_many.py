@@ -35,11 +35,14 @@ _INTEGER_OPTIONS = ("n_sweep", CATHETER, SETTING, RUN)
 
 
 def _is_table(path):
-    """True for a file whose suffix :func:`read_recording` supports."""
-    name = path.name.lower()
-    return path.is_file() and any(
-        name.endswith(s) and len(name) > len(s) for s in (*_CSV_SUFFIXES, *_PARQUET_SUFFIXES)
-    )
+    """True for a file whose suffix :func:`read_recording` supports (:func:`_file_kind`)."""
+    if not path.is_file():
+        return False
+    try:
+        _file_kind(path)
+    except ValueError:
+        return False
+    return True
 
 
 def _files_of(source):

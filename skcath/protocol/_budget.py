@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from joblib import delayed
-from sklearn.frozen import FrozenEstimator
 from sklearn.utils import Bunch
 
 from .. import _format as fmt
@@ -29,7 +28,7 @@ from ..metrics import per_run_rmse
 from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
 from ..model_selection._split import _exclusion_set
 from ..sweep import reduce_sweep
-from ._protocol import _LEARNER_COLUMNS, _make_learner, _run_tasks
+from ._protocol import _LEARNER_COLUMNS, _finetune, _pretrain, _run_tasks
 from ._schedule import get_schedule
 
 __all__ = [
@@ -55,8 +54,11 @@ BUDGET_FILES = {
 }
 
 
-def _check_levels(values, name, low, high=None):
-    """Validated tuple of distinct integers in ``[low, high]``, in the given order."""
+def _check_levels(values, name, low, high=None, why=""):
+    """Validated tuple of distinct integers in ``[low, high]``, in the given order.
+
+    ``why`` ends the error message's statement of what is expected.
+    """
     values = (values,) if isinstance(values, Integral) else tuple(values)
     bad = [
         v for v in values
@@ -64,7 +66,7 @@ def _check_levels(values, name, low, high=None):
     ]
     if not values or bad:
         upper = "" if high is None else f" to {high}"
-        raise ValueError(f"{name} must hold integers from {low}{upper}; got {values!r}.")
+        raise ValueError(f"{name} must hold integers from {low}{upper}{why}; got {values!r}.")
     return tuple(dict.fromkeys(int(v) for v in values))
 
 
@@ -74,21 +76,6 @@ def _budgets(rays, strides, n_rays_swept):
     pairs += [(n, 1) for n in sorted(rays, reverse=True)]
     pairs += [(n_rays_swept, s) for s in sorted(strides)]
     return list(dict.fromkeys(pairs))
-
-
-def _finetune_budgets(key, params, pretrained, X_train, y_train, X_tests):
-    """Fine-tune a pretrained model on full sweeps; predict the test runs of every budget."""
-    start = time.perf_counter()
-    params = {**params, "pretrained": FrozenEstimator(pretrained)}
-    model = _make_learner(_VARIANT, key["seed"], params).fit(X_train, y_train)
-    return key, [model.predict(X) for X in X_tests], time.perf_counter() - start
-
-
-def _pretrain(key, params, X_train, y_train):
-    """Pretrain on the other catheters (full sweeps)."""
-    start = time.perf_counter()
-    model = _make_learner(_VARIANT, key["seed"], params).fit(X_train, y_train)
-    return key, model, time.perf_counter() - start
 
 
 def _sweep_size(X, stride):
@@ -193,7 +180,10 @@ def run_calibration_budget(
     start = time.perf_counter()
     if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 3:
         raise ValueError(f"n_rays_swept must be an integer of at least 3; got {n_rays_swept!r}.")
-    rays = _check_levels(rays, "rays", 3, int(n_rays_swept))
+    rays = _check_levels(
+        rays, "rays", 3, int(n_rays_swept),
+        f" (the backbones need at least 3 rays; a sweep of n_rays_swept={n_rays_swept} has no more)",
+    )
     strides = _check_levels(strides, "strides", 1)
     budgets = _budgets(rays, strides, int(n_rays_swept))
     spacing = 360.0 / n_rays_swept
@@ -311,13 +301,13 @@ def _learned_records(
             catheter = catheter_ids[test[0]]
             if catheter in catheters:
                 for seed in schedule.seeds:
-                    key = {"seed": seed, "catheter": catheter}
-                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train])
+                    key = {"variant": _VARIANT, "seed": seed, "catheter": catheter}
+                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], [])
 
     n_pre = len(catheters) * len(schedule.seeds)
     pretrained = {
         (key["catheter"], key["seed"]): model
-        for key, model, _ in _run_tasks(pretrain_tasks(), n_pre, n_jobs, "pretraining", verbose)
+        for key, model, _, _ in _run_tasks(pretrain_tasks(), n_pre, n_jobs, "pretraining", verbose)
     }
 
     folds = [(train, test) for train, test in within.split(X) if catheter_ids[test[0]] in catheters]
@@ -329,8 +319,8 @@ def _learned_records(
             test_runs = np.unique(run_ids[test])
             X_tests = [Xt[np.isin(runs, test_runs)] for (Xt, _), runs in zip(reduced, budget_runs)]
             for seed in schedule.seeds:
-                key = {"seed": seed, "fold": fold, "test_runs": test_runs}
-                yield delayed(_finetune_budgets)(
+                key = {"variant": _VARIANT, "seed": seed, "fold": fold, "test_runs": test_runs}
+                yield delayed(_finetune)(
                     key, fine_params, pretrained[catheter, seed], Xb.iloc[train], y[train], X_tests
                 )
 
@@ -338,7 +328,7 @@ def _learned_records(
         seed: [np.full((len(Xt), 3), np.nan) for Xt, _ in reduced] for seed in schedule.seeds
     }
     n_fine = len(folds) * len(schedule.seeds)
-    for key, preds, _ in _run_tasks(finetune_tasks(), n_fine, n_jobs, "fine-tuning", verbose):
+    for key, _, preds, _ in _run_tasks(finetune_tasks(), n_fine, n_jobs, "fine-tuning", verbose):
         for b, pred in enumerate(preds):
             predictions[key["seed"]][b][np.isin(budget_runs[b], key["test_runs"])] = pred
     records = []

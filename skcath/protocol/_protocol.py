@@ -39,20 +39,30 @@ def _make_learner(variant, seed, params):
     return cls(use_torque=use_torque, use_context=use_context, random_state=seed, n_threads=1, **params)
 
 
-def _pretrain(key, params, X_train, y_train, X_test):
-    """Pretrain on the other catheters; predict the held-out catheter (LOCO)."""
+def _pretrain(key, params, X_train, y_train, X_tests):
+    """Pretrain on the other catheters; predict each frame of ``X_tests``.
+
+    ``X_tests`` holds the held-out catheter (LOCO) or nothing. Returns the
+    key, the model, the list of predictions and the wall time (s).
+    """
     start = time.perf_counter()
     model = _make_learner(key["variant"], key["seed"], params).fit(X_train, y_train)
-    pred = None if X_test is None else model.predict(X_test)
-    return key, model, pred, time.perf_counter() - start
+    preds = [model.predict(X) for X in X_tests]
+    return key, model, preds, time.perf_counter() - start
 
 
-def _finetune(key, params, pretrained, X_train, y_train, X_test):
-    """Fine-tune a pretrained model on a fold's training runs; predict its test runs."""
+def _finetune(key, params, pretrained, X_train, y_train, X_tests):
+    """Fine-tune a pretrained model on a fold's training runs; predict each frame of ``X_tests``.
+
+    ``X_tests`` holds the fold's test runs, once or in several versions (one
+    per calibration budget). Returns the key, None (the model stays in the
+    worker), the list of predictions and the wall time (s).
+    """
     start = time.perf_counter()
     params = {**params, "pretrained": FrozenEstimator(pretrained)}
     model = _make_learner(key["variant"], key["seed"], params).fit(X_train, y_train)
-    return key, None, model.predict(X_test), time.perf_counter() - start
+    preds = [model.predict(X) for X in X_tests]
+    return key, None, preds, time.perf_counter() - start
 
 
 def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
@@ -164,8 +174,8 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
             for variant in schedule.variants:
                 for seed in schedule.seeds:
                     key = {"variant": variant, "seed": seed, "catheter": catheter, "test": test}
-                    X_test = Xb.iloc[test] if variant == LOCO_VARIANT else None
-                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], X_test)
+                    X_tests = [Xb.iloc[test]] if variant == LOCO_VARIANT else []
+                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], X_tests)
 
     n_models = len(schedule.variants) * len(schedule.seeds)
     pretrained = {}
@@ -182,12 +192,12 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         predictions[method][seed][rows] = values
 
     timings = []
-    for key, model, pred, seconds in _run_tasks(
+    for key, model, preds, seconds in _run_tasks(
         pretrain_tasks(), n_models * len(loco_folds), n_jobs, "pretraining", verbose
     ):
         pretrained[key["variant"], key["seed"], key["catheter"]] = model
         if key["variant"] == LOCO_VARIANT:
-            store(LOCO_METHOD, key["seed"], key["test"], pred)
+            store(LOCO_METHOD, key["seed"], key["test"], preds[0])
         timings.append({"stage": "pretrain", "variant": key["variant"], "seed": key["seed"],
                         "catheter": key["catheter"], "seconds": seconds})
 
@@ -200,13 +210,13 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
                            "test": test}
                     yield delayed(_finetune)(
                         key, fine_params, pretrained[variant, seed, catheter],
-                        Xb.iloc[train], y[train], Xb.iloc[test],
+                        Xb.iloc[train], y[train], [Xb.iloc[test]],
                     )
 
-    for key, _, pred, seconds in _run_tasks(
+    for key, _, preds, seconds in _run_tasks(
         finetune_tasks(), n_models * len(within_folds), n_jobs, "fine-tuning", verbose
     ):
-        store(key["variant"], key["seed"], key["test"], pred)
+        store(key["variant"], key["seed"], key["test"], preds[0])
         timings.append({"stage": "fine-tune", "variant": key["variant"], "seed": key["seed"],
                         "catheter": key["catheter"], "seconds": seconds})
 
