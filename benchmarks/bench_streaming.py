@@ -12,9 +12,12 @@ every pass, so every pass reproduces ``predict`` on the run).
 
 Variants, all with the backbone included (the same calibration of the run):
 
-- ``online float64`` / ``online float32``:
-  ``skcath.online.OnlineEstimator(pipe, dtype=...).step(q1, q2, tau1, tau2,
-  out=buf)``, the numpy stepping kernels;
+- ``online float64, numba`` / ``online float32, numba``:
+  ``skcath.online.OnlineEstimator(pipe, dtype=..., engine="numba").step(q1,
+  q2, tau1, tau2, out=buf)``, one compiled kernel per step (if numba is
+  installed);
+- ``online float64, numpy`` / ``online float32, numpy``: the same with
+  ``engine="numpy"``, the numpy stepping kernels;
 - ``plain torch GRUCell``: the loop a user would write in torch with the
   same weights: the same backbone kernel for ``b``, the step features as a
   float32 tensor, normalised and concatenated with the context ``z`` in
@@ -26,7 +29,14 @@ Variants, all with the backbone included (the same calibration of the run):
   session with one thread, fed the same features (if onnxruntime is
   installed);
 - ``online, MLP`` and ``online, backbone only``: the same loop for
-  ``MLPResidual`` (default sizes) and ``NoResidual``, for scale.
+  ``MLPResidual`` (default sizes) and ``NoResidual``, for scale, with each
+  engine.
+
+The numba kernel is compiled when numba's cache is empty and loaded from it
+otherwise, by ``start``, outside the timed loop. The script reports the time
+of a compilation from scratch: a separate Python process compiles the kernel
+for float64 and float32 with an empty, temporary cache (``NUMBA_CACHE_DIR``),
+including the import of numba and skcath.
 
 Each step is timed with ``time.perf_counter_ns``. The variants run
 interleaved in rounds of 1,000 steps (A B C ..., then again) so that a
@@ -36,9 +46,13 @@ p50 of the same run. Torch uses one intra-op thread and numpy's BLAS one
 thread (``threadpoolctl``): the whole loop runs on one core.
 
 Allocations: with ``tracemalloc`` running, ``--alloc-steps`` steps of each
-online variant (``out=`` given, after 1,000 warm-up steps); "bytes/step" is
+online variant (both engines) (``out=`` given, after 1,000 warm-up steps); "bytes/step" is
 the growth of the traced memory over the loop divided by the steps, and
 "peak B" the largest traced memory above the start during the loop.
+tracemalloc sees Python's allocations, not those of numba's runtime; with
+the environment variable ``NUMBA_NRT_STATS=1`` the script also prints the
+allocations numba's runtime made per step in the same loop (numba counts
+them only when the variable is set before it is imported).
 
 The table also gives the largest difference to ``pipe.predict`` on the run
 (mm): float32 ``predict`` as fitted, and float64 ``predict`` (a copy of the
@@ -56,6 +70,7 @@ import argparse
 import copy
 import importlib.util
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -187,14 +202,24 @@ def _timed(step, samples, reset, start, n_steps, times):
     return i
 
 
+def _nrt_allocations():
+    """Allocations counted by numba's runtime so far, or None when it does not count."""
+    if os.environ.get("NUMBA_NRT_STATS") != "1" or "numba" not in sys.modules:
+        return None
+    from numba.core.runtime import rtsys
+
+    return rtsys.get_allocation_stats().alloc
+
+
 def _alloc(est, samples, n_steps):
-    """Traced memory growth per step and peak above the start (bytes)."""
+    """Traced memory growth per step, peak above the start (bytes), numba allocations per step."""
     out = np.empty(3)
     est.reset()
     n = len(samples)
     for k in range(min(ROUND, n)):
         est.step(*samples[k], out=out)
     est.reset()
+    nrt_before = _nrt_allocations()
     tracemalloc.start()
     tracemalloc.reset_peak()
     before = tracemalloc.get_traced_memory()[0]
@@ -208,14 +233,44 @@ def _alloc(est, samples, n_steps):
         i += 1
     current, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    return (current - before) / n_steps, peak - before
+    nrt_after = _nrt_allocations()
+    nrt = None if nrt_before is None else (nrt_after - nrt_before) / n_steps
+    return (current - before) / n_steps, peak - before, nrt
+
+
+_COLD_COMPILE = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+from skcath.online import _jit
+from skcath.online._jit import step_kernel, _compile
+t1 = time.perf_counter()
+a64, a32 = np.zeros(4), np.zeros(4, np.float32)
+meta = np.zeros(4, np.int64)
+s64 = _compile(meta, a64, a64, a32, a64)
+s32 = _compile(meta, a64, a32, a32, a32)
+print(t1 - t0, s64, s32)
+"""
+
+
+def _cold_compile():
+    """Seconds to import and to compile the kernel for float64 and float32, cache empty."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        done = subprocess.run([sys.executable, "-c", _COLD_COMPILE], env=env, check=True,
+                              capture_output=True, text=True)
+    return tuple(float(v) for v in done.stdout.split())
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=20000, help="timed steps per variant")
     parser.add_argument("--alloc-steps", type=int, default=5000, help="steps under tracemalloc")
+    parser.add_argument("--no-cold-compile", action="store_true",
+                        help="skip timing a compilation of the numba kernel from scratch")
     args = parser.parse_args(argv)
+    has_numba = importlib.util.find_spec("numba") is not None
+    cold = _cold_compile() if has_numba and not args.no_cold_compile else None
     torch.set_num_threads(1)
     threadpool_limits(1)
 
@@ -233,20 +288,29 @@ def main(argv=None):
     sweep = run[~motion]
     samples = [tuple(map(float, row)) for row in run.loc[motion, ["q1", "q2", "tau1", "tau2"]].to_numpy()]
 
-    estimators = {
-        "online float64": OnlineEstimator(pipes["gru"], dtype="float64").start(sweep),
-        "online float32": OnlineEstimator(pipes["gru"], dtype="float32").start(sweep),
-        "online, MLP (float64)": OnlineEstimator(pipes["mlp"]).start(sweep),
-        "online, backbone only": OnlineEstimator(pipes["none"]).start(sweep),
-    }
-    torch_loop = TorchLoop(pipes["gru"], estimators["online float64"])
+    engines = ["numba", "numpy"] if has_numba else ["numpy"]
+    if has_numba:
+        importlib.import_module("skcath.online._jit")  # so that start_s leaves out the import
+    estimators, start_s = {}, {}
+    for pipe, dtype, label in [("gru", "float64", "online float64"),
+                               ("gru", "float32", "online float32"),
+                               ("mlp", "float64", "online, MLP (float64)"),
+                               ("none", "float64", "online, backbone only")]:
+        for engine in engines:
+            name = f"{label}, {engine}"
+            t0 = time.perf_counter()
+            est = OnlineEstimator(pipes[pipe], dtype=dtype, engine=engine)
+            estimators[name] = est.start(sweep)
+            start_s[name] = time.perf_counter() - t0
+    torch_loop = TorchLoop(pipes["gru"], estimators["online float64, numpy"])
     loops = {"plain torch GRUCell": torch_loop}
     tmp = tempfile.TemporaryDirectory()
     if importlib.util.find_spec("onnxruntime") is not None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # notices of torch's legacy ONNX exporter
             loops["onnxruntime float32"] = OnnxLoop(
-                pipes["gru"], estimators["online float32"], Path(tmp.name) / "step.onnx", "float32"
+                pipes["gru"], estimators["online float32, numpy"], Path(tmp.name) / "step.onnx",
+                "float32",
             )
 
     # parity on one pass of the run
@@ -255,7 +319,7 @@ def main(argv=None):
     pipe64["residual"].module_.double()
     pred64 = pipe64.predict(run)[motion]
     parity = {}
-    for name in ("online float64", "online float32"):
+    for name in [n for n in estimators if n.startswith(("online float64", "online float32"))]:
         est = estimators[name].reset()
         tips = np.array([est.step(*s) for s in samples])
         parity[name] = (np.abs(tips - pred32).max(), np.abs(tips - pred64).max())
@@ -301,7 +365,23 @@ def main(argv=None):
           f"after: {', '.join(f'{v:.2f}' for v in load_after)}")
     print(f"- pipelines fitted in {fit_s:.1f} s; timing loop {bench_s:.1f} s; "
           f"{args.steps} steps per variant; run {run['run'].iloc[0]} "
-          f"({len(samples)} motion samples)\n")
+          f"({len(samples)} motion samples)")
+    if has_numba:
+        import numba
+
+        print(f"- numba {numba.__version__}; `start` of the GRU float64 / float32 estimators "
+              f"(numba engine, kernel compiled or loaded from numba's cache): "
+              f"{start_s['online float64, numba']:.2f} s / "
+              f"{start_s['online float32, numba']:.2f} s (numpy engine: "
+              f"{start_s['online float64, numpy']:.2f} s / "
+              f"{start_s['online float32, numpy']:.2f} s)")
+        if cold is not None:
+            print(f"- numba kernel compiled from scratch (empty cache, separate process): "
+                  f"float64 {cold[1]:.1f} s, float32 {cold[2]:.1f} s, after importing numba "
+                  f"and skcath in {cold[0]:.1f} s")
+    else:
+        print("- numba is not installed: numpy engine only")
+    print()
     ref = np.percentile(times["plain torch GRUCell"], 50)
     print("| variant | p50 us | p99 us | p50 / torch p50 | bytes/step | peak B | "
           "max diff to predict float32 (mm) | max diff to predict float64 (mm) |")
@@ -314,6 +394,10 @@ def main(argv=None):
         par = parity.get(name)
         d = f"{par[0]:.1e} | {par[1]:.1e}" if par else "- | -"
         print(f"| {name} | {p50:.1f} | {p99:.1f} | {p50 * 1e3 / ref:.2f} | {a} | {d} |")
+    nrt = {name: alloc[2] for name, alloc in allocs.items() if alloc[2] is not None}
+    if nrt:
+        print("\nAllocations of numba's runtime per step (NUMBA_NRT_STATS=1), same loops: "
+              + "; ".join(f"{name}: {v:.2f}" for name, v in nrt.items()))
 
 
 if __name__ == "__main__":

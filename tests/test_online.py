@@ -215,17 +215,22 @@ def test_start_matches_backbone_calibration(data, pipelines):
 # ---------------------------------------------------------------------------
 # backbone kernels
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("Backbone, tip, Step", [(PCCBackbone, pcc_tip, PCCStep), (PDLBackbone, pdl_tip, PDLStep)])
-def test_backbone_kernels_match_vectorised_backbones(data, transformed, Backbone, tip, Step):
+def _backbone_probe(data, transformed, Backbone, seed):
+    """Calibrated parameters of the test run's sweep and motor samples to probe them."""
     _, _, X_run = data
     sweep, _, _ = _split(X_run)
     params, _ = calibrate_sweep(transformed[Backbone][0], sweep)
     q_neutral = params.q0 if Backbone is PCCBackbone else params.q_neutral
     amplitude = np.abs(sweep[["q1", "q2"]].to_numpy() - q_neutral).max()
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     q = q_neutral + rng.uniform(-1.3, 1.3, size=(500, 2)) * amplitude
     # exactly neutral, exactly on a ray, and far out (closed-form branch of PCC)
-    q = np.vstack([q, q_neutral, q_neutral + [amplitude, 0.0], q[:1] * 5.0])
+    return params, np.vstack([q, q_neutral, q_neutral + [amplitude, 0.0], q[:1] * 5.0])
+
+
+@pytest.mark.parametrize("Backbone, tip, Step", [(PCCBackbone, pcc_tip, PCCStep), (PDLBackbone, pdl_tip, PDLStep)])
+def test_backbone_kernels_match_vectorised_backbones(data, transformed, Backbone, tip, Step):
+    params, q = _backbone_probe(data, transformed, Backbone, seed=0)
     kernel = Step(params)
     got = np.array([kernel(a, b) for a, b in q])
     assert_allclose(got, tip(q, params), rtol=0, atol=1e-10)
@@ -288,11 +293,13 @@ def test_step_before_start_raises():
 
 @pytest.mark.parametrize("channel", [0, 1, 2, 3])
 @pytest.mark.parametrize("value", [np.nan, np.inf])
-def test_non_finite_sample_raises_and_keeps_state(data, pipelines, channel, value):
+@pytest.mark.parametrize("engine", ["auto", "numpy"])  # auto: numba where installed
+def test_non_finite_sample_raises_and_keeps_state(data, pipelines, channel, value, engine):
     _, _, X_run = data
     sweep, samples, _ = _split(X_run)
-    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
-    reference = _stream(OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep), samples[:3])
+    pipe = pipelines(PDLBackbone, "gru")
+    est = OnlineEstimator(pipe, engine=engine).start(sweep)
+    reference = _stream(OnlineEstimator(pipe, engine=engine).start(sweep), samples[:3])
     est.step(*samples[0])
     bad = list(samples[1])
     bad[channel] = value

@@ -4,8 +4,9 @@
 followed by a residual learner). ``start`` calibrates the backbone on one
 run's sweep and encodes the sweep context, exactly as ``Pipeline.predict``
 does for that run; ``step`` then estimates the tip from one motor sample at
-a time with numpy kernels (:mod:`skcath.online._fast`), carrying the
-recurrent state between calls.
+a time, carrying the recurrent state between calls, with numpy kernels
+(:mod:`skcath.online._fast`) or, when numba is installed, one compiled
+kernel per step (:mod:`skcath.online._jit`).
 """
 
 from __future__ import annotations
@@ -144,6 +145,23 @@ def _calibrate(backbone, X, run):
     return params, nominal
 
 
+def _jit_module(engine):
+    """The numba kernel module for ``engine``, or None for the numpy kernels."""
+    if engine == "numpy":
+        return None
+    try:
+        from . import _jit
+    except ImportError as exc:
+        if engine == "numba":
+            raise ImportError(
+                'engine="numba" needs numba, which could not be imported '
+                f"({exc}); install it with pip install \"skcath[fast]\" (or pip install "
+                'numba), or use engine="numpy" or engine="auto".'
+            ) from exc
+        return None
+    return _jit
+
+
 def _neutral_angles(params):
     """Neutral motor angles (deg) of a calibration."""
     return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
@@ -260,6 +278,16 @@ class OnlineEstimator(BaseEstimator):
         it, ``detector_``, is started by :meth:`start` with the same sweep
         and stepped by :meth:`step` with the same (accepted) sample; its last
         answer is ``shaft_changed_``. The object passed is never changed.
+    engine : {"auto", "numba", "numpy"}, default="auto"
+        What evaluates a step after the input checks. ``"numba"``: one
+        compiled kernel (backbone, network, clip; :mod:`skcath.online._jit`),
+        which needs the optional dependency numba (``pip install
+        "skcath[fast]"``); it is compiled once per machine and dtype (numba's
+        cache, several seconds) and loaded by :meth:`start`. ``"numpy"``:
+        numpy kernels, a dozen numpy calls per step, slower
+        (``docs/deploying.rst`` gives measured times). ``"auto"``: numba when
+        it can be imported, else numpy. Both engines give the same tips up to
+        rounding (see *Notes*).
 
     Attributes
     ----------
@@ -286,6 +314,8 @@ class OnlineEstimator(BaseEstimator):
         Of those, samples that had a value replaced (``on_invalid="hold"``).
     nominal_ : ndarray of shape (3,)
         Nominal (backbone) tip of the last step (mm).
+    engine_ : {"numba", "numpy"}
+        The engine in use since :meth:`start`.
     detector_ : object
         The started copy of ``detector`` (only with a detector).
     shaft_changed_ : bool
@@ -308,6 +338,13 @@ class OnlineEstimator(BaseEstimator):
     takes its motor differences from the last sweep sample, as ``predict``
     does for the first motion row.
 
+    The two engines evaluate the same folded weights; they differ in the
+    order of the additions within a matrix-vector product and, with
+    ``dtype="float32"``, in the compiled kernel evaluating the gates' and the
+    head's nonlinearities in float64. In float64 both match the float64
+    ``predict`` to 1e-9 mm; in float32 they agree to float32 rounding (the
+    tests check 1e-5 mm).
+
     Examples
     --------
     >>> est = OnlineEstimator(pipe).start(X_run[X_run["phase"] == "sweep"])  # doctest: +SKIP
@@ -320,15 +357,17 @@ class OnlineEstimator(BaseEstimator):
         "on_invalid": [StrOptions({"raise", "hold"})],
         "q_margin": [Interval(Real, 0, None, closed="left"), None],
         "detector": [HasMethods(["start", "step"]), None],
+        "engine": [StrOptions({"auto", "numba", "numpy"})],
     }
 
     def __init__(self, pipeline, *, dtype="float64", on_invalid="raise", q_margin=0.25,
-                 detector=None):
+                 detector=None, engine="auto"):
         self.pipeline = pipeline
         self.dtype = dtype
         self.on_invalid = on_invalid
         self.q_margin = q_margin
         self.detector = detector
+        self.engine = engine
 
     # ------------------------------------------------------------------ set-up
     def start(self, sweep):
@@ -347,6 +386,7 @@ class OnlineEstimator(BaseEstimator):
         """
         self._started = False  # until this start has succeeded
         self._validate_params()
+        jit = _jit_module(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
         X, run = _check_sweep(sweep)
         params, nominal = _calibrate(backbone, X, run)
@@ -364,6 +404,7 @@ class OnlineEstimator(BaseEstimator):
         self.context_ = None
         self._kernel = None
         self._clip = math.inf
+        self._use_torque = False
         if residual is not None:
             if residual.frame == "sweep":
                 self.rotation_ = sweep_frame(q, nominal, run=run)
@@ -381,6 +422,14 @@ class OnlineEstimator(BaseEstimator):
         self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
         self._limit2 = self.q_limit_ * self.q_limit_
         self.nominal_ = np.zeros(3)
+        self._jit = None
+        self.engine_ = "numpy"
+        if jit is not None:
+            kernel = jit.JitStep(self._backbone, self._kernel, self._clip, self._use_torque)
+            self._jit = (jit.step_kernel, kernel.meta, kernel.f, kernel.w, kernel.w32,
+                         kernel.buf, kernel)
+            self.nominal_ = kernel.nominal
+            self.engine_ = "numba"
         if self.detector is not None:
             # a copy: the parameter stays as given, and two estimators never share state
             self.detector_ = copy.deepcopy(self.detector).start(X)
@@ -400,9 +449,14 @@ class OnlineEstimator(BaseEstimator):
         self : OnlineEstimator
         """
         self._check_started()
-        self._last = list(self._last_sweep)
-        if self._kernel is not None:
-            self._kernel.reset()
+        if self._jit is not None:
+            kernel = self._jit[-1]
+            kernel.reset(self._last_sweep)
+            self._last = kernel.last  # updated by the compiled step
+        else:
+            self._last = list(self._last_sweep)
+            if self._kernel is not None:
+                self._kernel.reset()
         self.n_steps_ = 0
         self.n_held_ = 0
         return self
@@ -441,10 +495,10 @@ class OnlineEstimator(BaseEstimator):
         held = list(sample)
         for k, name in enumerate(_CHANNELS):
             if name in bad:
-                held[k] = self._last[k]
+                held[k] = float(self._last[k])
         d1, d2 = held[0] - self._qn[0], held[1] - self._qn[1]
         if not d1 * d1 + d2 * d2 <= self._limit2:
-            held[0], held[1] = self._last[0], self._last[1]
+            held[0], held[1] = float(self._last[0]), float(self._last[1])
         self.n_held_ += 1
         return held
 
@@ -488,6 +542,13 @@ class OnlineEstimator(BaseEstimator):
                 "out must be a writeable float64 array of shape (3,); got "
                 f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
             )
+        if self._jit is not None:
+            kernel, meta, f, w, w32, buf, _ = self._jit
+            kernel(meta, f, w, w32, buf, out, q1, q2, tau1, tau2)
+            self.n_steps_ += 1
+            if self.detector is not None:
+                self.shaft_changed_ = bool(self.detector_.step(q1, q2, tau1, tau2))
+            return out
         last = self._last
         dq1, dq2 = q1 - last[0], q2 - last[1]
         last[0], last[1], last[2], last[3] = q1, q2, tau1, tau2

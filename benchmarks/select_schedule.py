@@ -1,0 +1,149 @@
+"""Choose the full protocol's training schedule on catheter C1.
+
+The full protocol (``python -m skcath reproduce``) pretrains every learned
+method on the other catheters and fine-tunes it once per held-out setting,
+so its cost is ``pretrain epochs x (4 catheters)`` plus ``fine-tune epochs x
+(64 folds)`` per method and seed. This script compares schedules on C1 only,
+for PDL+GRU with one seed, exactly as the protocol trains it:
+
+1. pretrain on C2-C4 for ``E_p`` epochs (learning rate 1e-2, cosine);
+   applied to C1 as is, this model gives the catheter-held-out (LOCO) error;
+2. for each of C1's 16 bent settings, fine-tune that model on C1's other
+   settings (S00 included) for ``E_f`` epochs and predict the held-out runs
+   (:class:`~skcath.model_selection.LeaveOneSettingOut`).
+
+It prints, per schedule, C1's mean per-run RMSE with setting held out and
+with the catheter held out, their ratios to PDL and to each other, and the
+measured seconds per pretraining and per fine-tuned fold (one torch thread).
+One pretrained model serves every fine-tuning schedule with the same
+pretraining epochs.
+
+Usage::
+
+    python benchmarks/select_schedule.py                       # the default grid (~20 CPU-min)
+    python benchmarks/select_schedule.py --grid 30:2:3e-3 20:8:3e-3 --n-jobs 2
+
+Each grid entry is ``PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR``. Nothing
+here looks at C2-C4's test errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import defaultdict
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+from sklearn.frozen import FrozenEstimator
+
+from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
+from skcath.datasets import make_benchmark
+from skcath.metrics import mean_per_run_rmse
+from skcath.model_selection import LeaveOneSettingOut
+from skcath.residuals import GRUResidual
+
+#: The schedules compared by default (pretrain epochs, fine-tune epochs, fine-tune lr).
+DEFAULT_GRID = (
+    "20:8:3e-3", "20:4:3e-3", "20:4:6e-3", "25:3:3e-3", "30:2:3e-3", "30:8:3e-3",
+)
+
+
+def _parse(entry):
+    try:
+        pre, fine, lr = entry.split(":")
+        return int(pre), int(fine), float(lr)
+    except ValueError:
+        raise SystemExit(
+            f"--grid entries must read PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR "
+            f"(e.g. 30:2:3e-3); got {entry!r}."
+        ) from None
+
+
+def _learner(seed, **params):
+    return GRUResidual(random_state=seed, n_threads=1, **params)
+
+
+def _pretrain(epochs, seed, X, y):
+    start = time.perf_counter()
+    model = _learner(seed, max_epochs=epochs, lr=1e-2).fit(X, y)
+    return epochs, model, time.perf_counter() - start
+
+
+def _finetune(key, pretrained, seed, X_train, y_train, X_test, test):
+    _, epochs, lr = key
+    start = time.perf_counter()
+    model = _learner(seed, max_epochs=epochs, lr=lr, pretrained=FrozenEstimator(pretrained))
+    pred = model.fit(X_train, y_train).predict(X_test)
+    return key, test, pred, time.perf_counter() - start
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--grid", nargs="+", default=list(DEFAULT_GRID),
+                        help="schedules PRETRAIN:FINETUNE:LR (default: %(default)s)")
+    parser.add_argument("--catheter", default="C1", help="catheter evaluated (default: C1)")
+    parser.add_argument("--seed", type=int, default=0, help="random_state (default: 0)")
+    parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
+    args = parser.parse_args(argv)
+    grid = [_parse(entry) for entry in args.grid]
+
+    data = make_benchmark()
+    X, y = data.X.reset_index(drop=True), np.asarray(data.y)
+    if args.catheter not in set(X["catheter"].astype(str)):
+        raise SystemExit(f"--catheter {args.catheter!r} is not in the benchmark.")
+    Xb = PDLBackbone(n_jobs=args.n_jobs).fit(X).transform(X)
+    held = (X["catheter"].astype(str) == args.catheter).to_numpy()
+    X_other, y_other = Xb[~held], y[~held]
+    Xc, yc = Xb[held].reset_index(drop=True), y[held]
+    folds = list(LeaveOneSettingOut(exclude_settings=["S00"]).split(Xc))
+
+    parallel = Parallel(n_jobs=args.n_jobs, max_nbytes=None)
+    pre_epochs = sorted({pre for pre, _, _ in grid})
+    print(f"pretraining {len(pre_epochs)} models on the other catheters ...", file=sys.stderr)
+    pretrained = {
+        epochs: (model, seconds)
+        for epochs, model, seconds in parallel(
+            delayed(_pretrain)(epochs, args.seed, X_other, y_other) for epochs in pre_epochs
+        )
+    }
+    print(f"fine-tuning {len(grid)} x {len(folds)} models ...", file=sys.stderr)
+    tasks = (
+        delayed(_finetune)(key, pretrained[key[0]][0], args.seed,
+                           Xc.iloc[train], yc[train], Xc.iloc[test], test)
+        for key in grid for train, test in folds
+    )
+    predictions = defaultdict(lambda: np.full_like(yc, np.nan))
+    seconds = defaultdict(list)
+    for key, test, pred, took in parallel(tasks):
+        predictions[key][test] = pred
+        seconds[key].append(took)
+
+    evaluated = np.zeros(len(Xc), dtype=bool)
+    for _, test in folds:
+        evaluated[test] = True
+    Xe, ye = Xc[evaluated], yc[evaluated]
+    pdl = mean_per_run_rmse(ye, Xe[list(BACKBONE_COLUMNS)].to_numpy(), Xe)
+    loco = {epochs: mean_per_run_rmse(ye, model.predict(Xe), Xe)
+            for epochs, (model, _) in pretrained.items()}
+    rows = []
+    for key in grid:
+        pre, fine, lr = key
+        within = mean_per_run_rmse(ye, predictions[key][evaluated], Xe)
+        rows.append({
+            "pretrain epochs": pre, "fine-tune epochs": fine, "fine-tune lr": lr,
+            "setting held out (mm)": within, "ratio to PDL": within / pdl,
+            "catheter held out (mm)": loco[pre], "LOCO / setting held out": loco[pre] / within,
+            "pretrain (s)": pretrained[pre][1],
+            "fine-tune fold (s, median)": float(np.median(seconds[key])),
+        })
+    table = pd.DataFrame(rows)
+    print(f"catheter {args.catheter}, PDL+GRU, seed {args.seed}; PDL {pdl:.3f} mm")
+    print(table.to_markdown(index=False, floatfmt=".3f"))
+    return table
+
+
+if __name__ == "__main__":
+    main()
