@@ -755,9 +755,17 @@ TORQUE_NOISE = 3.0  # N mm, standard deviation of the simulated torque noise
 
 
 def _first_crossing(d, rho, level):
-    """``rho`` where ``d`` first reaches ``level`` along the samples (linear interpolation)."""
-    j = np.flatnonzero(d >= level)[0]
-    assert j > 0, "the branch starts beyond the level"
+    """``rho`` where ``d`` first reaches ``level`` along the samples (linear interpolation).
+
+    NaN when the branch starts beyond the level or never reaches it: with the
+    wide play of a high bend (simulator version 5) the tip of a ray that
+    moved little can stay that far from its start when the motors are back
+    at neutral, or reach its farthest point only on the way back.
+    """
+    hits = np.flatnonzero(d >= level)
+    if hits.size == 0 or hits[0] == 0:
+        return np.nan
+    j = hits[0]
     return np.interp(level, d[j - 1 : j + 1], rho[j - 1 : j + 1])
 
 
@@ -850,8 +858,8 @@ def branches(request):
 
 
 def test_hysteresis_gap_of_several_mm(branches):
-    # measured mean gap (mm): 9.2 (play), 10.4 (Bouc-Wen), 13.5 (Dahl); in the
-    # least hysteretic run 5.0, 8.0, 8.9; 5 % quantile 3.9, 4.5, 6.9
+    # measured mean gap (mm, simulator version 5): 8.9 (play), 9.8 (Bouc-Wen);
+    # in the least hysteretic run 4.7, 8.0; 5 % quantile 3.4, 4.2
     _, gaps, _ = branches
     tip_gap = gaps["tip_gap"]
     assert 4.0 <= tip_gap.mean() <= 20.0
@@ -870,6 +878,9 @@ def test_backlash_grows_with_shaft_bend(branches):
     # away from where it started. (The gap in mm does not grow with the bend:
     # a bent shaft transmits fewer degrees of bend per motor degree.)
     _, _, backlash = branches
+    # rays whose return branch starts beyond the fraction give no backlash
+    assert backlash["backlash"].isna().mean() <= 0.05, backlash["backlash"].isna().mean()
+    backlash = backlash.dropna()
     assert backlash["backlash"].min() >= 3.0
     assert 10.0 <= backlash["backlash"].mean() <= 30.0
     by_level = backlash.groupby("bend_level")["backlash"].mean()
@@ -889,11 +900,14 @@ def test_drive_torque_higher_on_loading_branch(branches):
     assert (torque_gap > 0).mean() >= 0.98
 
 
-def test_torque_gap_grows_with_shaft_bend(branches):
+def test_torque_gap_higher_in_the_high_bend_than_in_the_low(branches):
     # capstan friction of the bent shaft: exp(mu Theta) grows with the wrap.
-    # measured (N mm, straight / low / high): play 19.2 / 25.9 / 35.1,
-    # Bouc-Wen 22.5 / 30.0 / 39.7, Dahl 17.4 / 24.5 / 33.4 (ratios >= 1.32)
+    # Simulator version 4 (N mm, straight / low / high): play 19.2 / 25.9 /
+    # 35.1 (ratios >= 1.32). In version 5 the no-load play widens with the
+    # wrap too, which leaves part of the friction elements between their
+    # branches on a ray and offsets most of that growth: play 21.8 / 20.6 /
+    # 23.9, Bouc-Wen 24.7 / 24.3 / 27.6, Dahl 20.2 / 18.2 / 20.6; only the
+    # step from the low to the high bend (ratios >= 1.13) remains.
     _, gaps, _ = branches
     by_level = gaps.groupby("bend_level")["torque_gap"].mean()
-    assert by_level["low"] >= 1.2 * by_level["straight"], by_level.to_dict()
-    assert by_level["high"] >= 1.2 * by_level["low"], by_level.to_dict()
+    assert by_level["high"] >= 1.05 * by_level["low"], by_level.to_dict()
