@@ -72,7 +72,7 @@ FULL = Schedule(
     finetune_params={"max_epochs": 2, "lr": 3e-3},
 )
 
-#: A short version for a first look (about ten minutes on two CPU cores):
+#: A short version for a first look (about three minutes on two CPU cores):
 #: one seed, four setting folds per catheter, smaller networks and fewer
 #: epochs. Its numbers are higher than the full protocol's.
 QUICK = Schedule(
