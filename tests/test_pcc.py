@@ -326,18 +326,26 @@ def test_errors_name_the_argument():
 # ---------------------------------------------------------------------------
 # simulated sweeps (not PCC: a few mm of model error)
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("seed, setting", [(0, "S00"), (1, "S05"), (2, "S12"), (3, "S16")])
+_V5_HIGH_BEND = pytest.mark.xfail(
+    strict=True,
+    reason="simulator version 5: the wide play of a high bend shrinks the sweep's spread to "
+    "about 12 mm, so the hysteresis loops exceed 0.6 of it (known simulator defect)",
+)
+
+
+@pytest.mark.parametrize(
+    "seed, setting",
+    [(0, "S00"), (1, "S05"), (2, "S12"), pytest.param(3, "S16", marks=_V5_HIGH_BEND)],
+)
 def test_fits_simulated_sweep(seed, setting):
     q, p = simulated_sweep(seed, setting, dropout_rate=0.02)
     prm, info = calibrate_pcc(q, p, return_info=True)
     assert info["converged"]
     # the simulator is not PCC and has ~10 mm hysteresis loops between the
     # outward and return strokes: the fit must still explain most of the motion
-    # (a high bend's wide play, simulator version 5, shrinks the sweep's spread
-    # to about 12 mm, so the loops take a larger share of it there)
     keep = ~np.isnan(p).any(axis=1)
     spread = np.sqrt(np.mean(np.sum((p[keep] - p[keep].mean(axis=0)) ** 2, axis=1)))
-    assert 0.3 < info["rmse_mm"] < 0.65 * spread
+    assert 0.3 < info["rmse_mm"] < 0.6 * spread
     assert 30.0 < prm.L < 90.0
     # the fit is a least-squares minimum: no small change of the free
     # parameters (C, u0, L) lowers the sweep error
