@@ -390,29 +390,16 @@ class OnlineEstimator(BaseEstimator):
         backbone, residual = check_online_pipeline(self.pipeline)
         X, run = _check_sweep(sweep)
         params, nominal = _calibrate(backbone, X, run)
-        if isinstance(params, PCCParams):
-            self._backbone = PCCStep(params)
-        elif isinstance(params, PDLParams):
-            self._backbone = PDLStep(params)
-        else:  # pragma: no cover - every backbone returns one of the two
-            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
         tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
         self.run_ = run
         self.backbone_params_ = params
         self.rotation_ = None
         self.context_ = None
-        self._kernel = None
-        self._clip = math.inf
-        self._use_torque = False
         if residual is not None:
             if residual.frame == "sweep":
                 self.rotation_ = sweep_frame(q, nominal, run=run)
             self.context_ = _context(residual, X, self.dtype)
-            self._kernel = residual_kernel(residual, self.rotation_, self.context_, self.dtype)
-            self._use_torque = residual.use_torque
-            if residual.clip is not None:
-                self._clip = float(residual.clip)
         self.q_neutral_ = _neutral_angles(params)
         self.q_amplitude_ = float(np.hypot(*(q - self.q_neutral_).T).max())
         self.q_limit_ = (
@@ -421,6 +408,36 @@ class OnlineEstimator(BaseEstimator):
         self._last_sweep = (float(q[-1, 0]), float(q[-1, 1]), float(tau[-1, 0]), float(tau[-1, 1]))
         self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
         self._limit2 = self.q_limit_ * self.q_limit_
+        self._build_kernels(residual, jit)
+        if self.detector is not None:
+            # a copy: the parameter stays as given, and two estimators never share state
+            self.detector_ = copy.deepcopy(self.detector).start(X)
+            self.shaft_changed_ = False
+        self._started = True
+        return self.reset()
+
+    def _build_kernels(self, residual, jit):
+        """The step's kernels from the calibration and the context of :meth:`start`.
+
+        ``residual`` is the pipeline's residual step (or None), ``jit`` the
+        numba kernel module (or None for the numpy kernels). Sets
+        ``nominal_`` (zero) and ``engine_``; the recurrent state is zero.
+        """
+        params = self.backbone_params_
+        if isinstance(params, PCCParams):
+            self._backbone = PCCStep(params)
+        elif isinstance(params, PDLParams):
+            self._backbone = PDLStep(params)
+        else:  # pragma: no cover - every backbone returns one of the two
+            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
+        self._kernel = None
+        self._clip = math.inf
+        self._use_torque = False
+        if residual is not None:
+            self._kernel = residual_kernel(residual, self.rotation_, self.context_, self.dtype)
+            self._use_torque = residual.use_torque
+            if residual.clip is not None:
+                self._clip = float(residual.clip)
         self.nominal_ = np.zeros(3)
         self._jit = None
         self.engine_ = "numpy"
@@ -430,12 +447,47 @@ class OnlineEstimator(BaseEstimator):
                          kernel.buf, kernel)
             self.nominal_ = kernel.nominal
             self.engine_ = "numba"
-        if self.detector is not None:
-            # a copy: the parameter stays as given, and two estimators never share state
-            self.detector_ = copy.deepcopy(self.detector).start(X)
-            self.shaft_changed_ = False
-        self._started = True
-        return self.reset()
+
+    def _hidden_states(self):
+        """The recurrent state arrays the step updates in place (empty without a GRU)."""
+        if self._jit is not None:
+            return self._jit[-1]._hidden
+        return getattr(self._kernel, "hidden", [])
+
+    # ------------------------------------------------------------ pickling
+    # The kernels keep views into their buffers (the hidden state, the last
+    # sample, the nominal tip), which pickle would turn into detached copies.
+    # A pickle therefore holds the calibration and the running state, and
+    # loading rebuilds the kernels from the pipeline and restores the state.
+    _RUNTIME = ("_backbone", "_kernel", "_clip", "_use_torque", "_jit", "_last", "nominal_")
+
+    def __getstate__(self):
+        state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
+        if self._started:
+            state["_running"] = {
+                "hidden": [np.array(h) for h in self._hidden_states()],
+                "last": [float(v) for v in self._last],
+                "nominal": np.array(self.nominal_),
+            }
+        return state
+
+    def __setstate__(self, state):
+        state = dict(state)
+        running = state.pop("_running", None)
+        super().__setstate__(state)
+        if running is None:
+            return
+        # engine="auto" takes numba if it can be imported where the pickle is loaded
+        _, residual = check_online_pipeline(self.pipeline)
+        self._build_kernels(residual, _jit_module(self.engine))
+        for h, saved in zip(self._hidden_states(), running["hidden"], strict=True):
+            h[:] = saved
+        if self._jit is not None:
+            self._last = self._jit[-1].last
+            self._last[:] = running["last"]
+        else:
+            self._last = list(running["last"])
+        self.nominal_[:] = running["nominal"]
 
     def reset(self):
         """Start a new motion sequence: zero recurrent state, as right after :meth:`start`.
