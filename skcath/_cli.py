@@ -110,6 +110,18 @@ def _add_data_home_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_seeds_argument(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """Add ``--seeds S [S ...]``, the non-negative seeds of the learned models."""
+    parser.add_argument(
+        "--seeds",
+        type=_seed,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help=help_text,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of ``python -m skcath``.
 
@@ -212,14 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="recordings in the long format (CSV or Parquet with p_x, p_y, p_z or sensor poses, "
         "see docs/data_format.rst) instead of the built-in benchmark",
     )
-    repro.add_argument(
-        "--seeds",
-        type=_seed,
-        nargs="+",
-        default=None,
-        metavar="S",
-        help="seeds of the learned models (default: 0 1 2, or 0 with --quick)",
-    )
+    _add_seeds_argument(repro, "seeds of the learned models (default: 0 1 2, or 0 with --quick)")
     repro.add_argument(
         "--variants",
         nargs="+",
@@ -309,14 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="quick",
         help="training schedule of PDL+GRU, as in reproduce (default: %(default)s)",
     )
-    budget.add_argument(
-        "--seeds",
-        type=_seed,
-        nargs="+",
-        default=None,
-        metavar="S",
-        help="seeds of PDL+GRU (default: those of the schedule)",
-    )
+    _add_seeds_argument(budget, "seeds of PDL+GRU (default: those of the schedule)")
     budget.add_argument(
         "--backbones-only",
         action="store_true",

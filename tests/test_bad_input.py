@@ -9,6 +9,7 @@ unchanged. The table of these cases is in ``docs/data_format.rst``
 """
 
 import copy
+import re
 
 import numpy as np
 import pandas as pd
@@ -18,7 +19,7 @@ from skcath._validation import check_recordings
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
 from skcath.frames import tip_in_base_frame
-from skcath.io import read_recording
+from skcath.io import read_recording, read_streams
 from skcath.sweep import find_rays
 from test_validation import make_recordings
 
@@ -376,6 +377,36 @@ def test_bad_file_is_rejected(tmp_path, breaker, match):
     with pytest.raises(ValueError, match=r"rec\.csv: (the )?" + match):
         read_recording(path)
     pd.testing.assert_frame_equal(frame, before)
+
+
+def test_unknown_reading_option_names_the_options():
+    """A reader that passes options on to read_recording lists them all, in order."""
+    X, y = tiny_recordings(n_runs=1)
+    motors = X.drop(columns=REFERENCE)
+    tracker = _standard_file(X, y)[["t", *TARGET]]
+    before = motors.copy(deep=True), tracker.copy(deep=True)
+    options = [
+        "columns", "quat_order", "catheter", "setting", "run", "rate_hz",
+        "constants", "scale", "phase", "n_sweep", "valid", "tip_offset",
+    ]
+    expected = (
+        "read_streams() got the unknown keyword argument(s) ['nsweep']; the reading "
+        f"options are {options}."
+    )
+    with pytest.raises(TypeError, match=re.escape(expected)):
+        read_streams(motors, tracker, tolerance=0.01, nsweep=4)
+    # the options left out take read_recording's defaults
+    X_read, y_read, _ = read_streams(motors, tracker, tolerance=0.01)
+    X_all, y_all, _ = read_streams(
+        motors, tracker, tolerance=0.01, columns=None, quat_order="wxyz", catheter=None,
+        setting=None, run=None, constants=None, scale=None, phase=None, n_sweep=None,
+        valid=None, tip_offset=None,
+    )
+    pd.testing.assert_frame_equal(X_all, X_read)
+    np.testing.assert_array_equal(y_all, y_read)
+    np.testing.assert_allclose(y_read, y)
+    pd.testing.assert_frame_equal(motors, before[0])
+    pd.testing.assert_frame_equal(tracker, before[1])
 
 
 def test_reader_keeps_tracker_dropouts_as_nan(tmp_path):

@@ -7,35 +7,25 @@ every prediction and table must equal the ``n_jobs=1`` run. Skipped when
 ``dask.distributed`` is not installed.
 """
 
-import numpy as np
 import pandas as pd
 import pytest
 from joblib import parallel_config
 from numpy.testing import assert_array_equal
 
-from skcath.datasets import make_benchmark
-from skcath.protocol import Schedule, compute_tables, run_protocol
+from skcath.protocol import compute_tables, run_protocol
+
+from _helpers import benchmark_settings, tiny_schedule
 
 distributed = pytest.importorskip("distributed")
 
 EXCLUDED = "S00"
 SETTINGS = ("S00", "S01", "S02", "S03")
-TINY = Schedule(
-    name="tiny",
-    seeds=(0,),
-    n_setting_folds=2,
-    variants=("PDL+GRU", "PDL+MLP"),
-    model_params={"module__hidden_size": 8, "window_step": 200},
-    pretrain_params={"max_epochs": 1},
-    finetune_params={"max_epochs": 1},
-)
+TINY = tiny_schedule(seeds=(0,), variants=("PDL+GRU", "PDL+MLP"))
 
 
 @pytest.fixture(scope="module")
 def data():
-    bench = make_benchmark(n_catheters=2, n_runs=1)
-    keep = bench.X["setting"].astype(str).isin(SETTINGS).to_numpy()
-    return bench.X[keep].reset_index(drop=True), np.asarray(bench.y, dtype=float)[keep]
+    return benchmark_settings(SETTINGS)
 
 
 def _assert_same(result, expected):

@@ -27,6 +27,8 @@ from skcath.online import OnlineEstimator, calibrate_sweep
 from skcath.online._fast import PCCStep, PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
+from _helpers import tiny_residual
+
 TRAIN_SETTINGS = ["S02", "S09"]
 TEST_SETTING = "S05"
 N_MOTION = 300
@@ -44,22 +46,8 @@ def _shorten(X, settings, n_motion):
 
 
 def _tiny(Est, **params):
-    base = dict(
-        max_epochs=1,
-        batch_size=16,
-        window=50,
-        burn_in=10,
-        sweep_stride=50,
-        n_threads=1,
-        random_state=0,
-        module__hidden_size=8,
-        module__encoder_hidden_size=8,
-        module__context_size=4,
-    )
-    if Est is GRUResidual:
-        base["module__head_hidden_size"] = 8
-    base.update(params)
-    return Est(**base)
+    """The tiny residual learner of the test suite, trained for one epoch."""
+    return tiny_residual(Est, **{"max_epochs": 1, **params})
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,6 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
-from skcath.datasets import make_benchmark
 from skcath.metrics import error_cdf, paired_reduction, per_run_rmse
 from skcath.protocol import (
     FULL,
@@ -31,6 +30,8 @@ from skcath.protocol import (
 from skcath.protocol import _protocol
 from skcath.protocol._report import TABLE_FILES
 
+from _helpers import benchmark_settings, tiny_schedule
+
 N_BOOTSTRAP = 200
 EXCLUDED = "S00"
 #: Settings kept from the benchmark (per catheter): enough for two setting folds.
@@ -38,15 +39,7 @@ SETTINGS = ("S00", "S01", "S02", "S03", "S04", "S05", "S06")
 SEEDS = (0, 1)
 LEARNED = ("PDL+GRU", "PDL+MLP")
 
-TINY = Schedule(
-    name="tiny",
-    seeds=SEEDS,
-    n_setting_folds=2,
-    variants=LEARNED,
-    model_params={"module__hidden_size": 8, "window_step": 200},
-    pretrain_params={"max_epochs": 1},
-    finetune_params={"max_epochs": 1},
-)
+TINY = tiny_schedule(seeds=SEEDS, variants=LEARNED)
 
 
 # ---------------------------------------------------------------------------
@@ -55,10 +48,7 @@ TINY = Schedule(
 @pytest.fixture(scope="module")
 def data():
     """Two catheters, one run per setting, settings S00-S06 (14 runs)."""
-    bench = make_benchmark(n_catheters=2, n_runs=1)
-    keep = bench.X["setting"].astype(str).isin(SETTINGS).to_numpy()
-    X = bench.X[keep].reset_index(drop=True)
-    y = np.asarray(bench.y, dtype=float)[keep]
+    X, y = benchmark_settings(SETTINGS)
     assert X["run"].nunique() == 2 * len(SETTINGS)
     return X, y
 

@@ -49,6 +49,8 @@ from skcath.residuals import (
 )
 from skcath.residuals._features import cut_windows, feature_frame, motor_deltas
 
+from _helpers import tiny_residual
+
 LEARNERS = [GRUResidual, MLPResidual]
 B = list(BACKBONE_COLUMNS)
 REF = ["ref_x", "ref_y", "ref_z"]
@@ -60,26 +62,6 @@ N_MOTION = 300
 # ---------------------------------------------------------------------------
 # data and estimators
 # ---------------------------------------------------------------------------
-def _tiny(Est, **params):
-    """A residual learner small enough to train in well under a second."""
-    base = dict(
-        max_epochs=2,
-        batch_size=16,
-        window=50,
-        burn_in=10,
-        sweep_stride=50,
-        n_threads=1,
-        random_state=0,
-        module__hidden_size=8,
-        module__encoder_hidden_size=8,
-        module__context_size=4,
-    )
-    if Est is GRUResidual:
-        base["module__head_hidden_size"] = 8
-    base.update(params)
-    return Est(**base)
-
-
 def _runs(X):
     """Run ids in order of first appearance."""
     return list(dict.fromkeys(X["run"].astype(str).tolist()))
@@ -124,7 +106,7 @@ def fitted(small):
 
     def get(Est):
         if Est not in cache:
-            est = _tiny(Est).fit(Xb, y)
+            est = tiny_residual(Est).fit(Xb, y)
             pred = est.predict(Xb)
             pred.flags.writeable = False
             cache[Est] = (est, pred)
@@ -361,7 +343,7 @@ def test_module_without_context_ignores_the_sweep(make):
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_pipeline_fit_predict(Est, small, fitted):
     X, Xb, y = small
-    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(Est))])
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", tiny_residual(Est))])
     assert pipe.fit(X, y) is pipe
     pred = pipe.predict(X)
     assert pred.shape == (len(X), 3) and pred.dtype == np.float64
@@ -395,7 +377,7 @@ def test_predict_residual_and_score(Est, small, fitted):
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_applied_residual_is_clipped(Est, small):
     _, Xb, y = small
-    est = _tiny(Est, clip=0.5).fit(Xb, y)
+    est = tiny_residual(Est, clip=0.5).fit(Xb, y)
     r = est.predict(Xb) - Xb[B].to_numpy()
     motion = _motion(Xb)
     assert np.abs(r[motion]).max() <= 0.5 + 1e-12
@@ -479,7 +461,7 @@ def test_runs_without_motion_get_the_backbone(Est, small, fitted):
 def test_inputs_are_not_modified(Est, small):
     _, Xb, y = small
     X_before, y_before = Xb.copy(deep=True), y.copy()
-    est = _tiny(Est).fit(Xb, y)
+    est = tiny_residual(Est).fit(Xb, y)
     est.predict(Xb)
     est.score(Xb, y)
     assert Xb.equals(X_before) and list(Xb.dtypes) == list(X_before.dtypes)
@@ -490,10 +472,10 @@ def test_inputs_are_not_modified(Est, small):
 def test_random_state_makes_fits_reproducible(Est, small, fitted):
     _, Xb, y = small
     _, pred = fitted(Est)
-    assert_array_equal(_tiny(Est).fit(Xb, y).predict(Xb), pred)
-    assert np.abs(_tiny(Est, random_state=1).fit(Xb, y).predict(Xb) - pred).max() > 1e-3
+    assert_array_equal(tiny_residual(Est).fit(Xb, y).predict(Xb), pred)
+    assert np.abs(tiny_residual(Est, random_state=1).fit(Xb, y).predict(Xb) - pred).max() > 1e-3
     # a RandomState instance is accepted as well
-    rs = _tiny(Est, random_state=np.random.RandomState(0)).fit(Xb, y).predict(Xb)
+    rs = tiny_residual(Est, random_state=np.random.RandomState(0)).fit(Xb, y).predict(Xb)
     assert rs.shape == pred.shape and np.isfinite(rs).all()
 
 
@@ -516,7 +498,7 @@ def test_fit_restores_threads_and_global_random_state(small):
         torch_state = torch.get_rng_state()
         np_state = np.random.get_state()[1].copy()
         spy = _ThreadSpy()
-        est = _tiny(GRUResidual, n_threads=1, callbacks=[("spy", spy)]).fit(Xb, y)
+        est = tiny_residual(GRUResidual, n_threads=1, callbacks=[("spy", spy)]).fit(Xb, y)
         assert spy.seen == [1, 1]  # training ran on one thread
         assert torch.get_num_threads() == before + 1
         assert torch.equal(torch.get_rng_state(), torch_state)
@@ -556,7 +538,7 @@ def test_clone_and_nested_params(Est, small, fitted):
     assert not cloned.initialized_ and not hasattr(cloned, "sigma_e_")
     assert_array_equal(cloned.fit(Xb, y).predict(Xb), pred)
     # module__ parameters reach the network
-    other = _tiny(Est).set_params(module__hidden_size=6, window=40)
+    other = tiny_residual(Est).set_params(module__hidden_size=6, window=40)
     assert other.get_params()["module__hidden_size"] == 6
     assert other.get_params()["window"] == 40
     other.fit(Xb, y)
@@ -580,7 +562,7 @@ def test_default_parameters():
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_fit_keeps_parameters(Est, small):
     _, Xb, y = small
-    est = _tiny(Est)
+    est = tiny_residual(Est)
     # skorch lists its callback instances (stateful once trained) among the
     # parameters; the estimator's own and the module's parameters must not change
     def own(params):
@@ -597,7 +579,7 @@ def test_fit_keeps_parameters(Est, small):
 
 def test_fit_sets_only_private_or_trailing_underscore_attributes(small):
     _, Xb, y = small
-    est = _tiny(GRUResidual)
+    est = tiny_residual(GRUResidual)
     public_before = {k for k in vars(est) if not k.startswith("_")}
     est.fit(Xb, y)
     est.predict(Xb)
@@ -634,7 +616,7 @@ def test_numeric_dtypes_of_recordings(Est, small, fitted):
     assert np.abs(pred2 - pred).max() < 1e-3
     # integer torques train as well
     X3 = Xb.assign(tau1=Xb["tau1"].round().astype(np.int64), tau2=Xb["tau2"].round().astype(int))
-    pred3 = _tiny(Est).fit(X3, y.astype(np.float32)).predict(X3)
+    pred3 = tiny_residual(Est).fit(X3, y.astype(np.float32)).predict(X3)
     assert pred3.dtype == np.float64 and np.isfinite(pred3).all()
 
 
@@ -651,13 +633,13 @@ def test_read_only_recordings(Est, small, fitted):
     y_ro = y.copy()
     y_ro.flags.writeable = False
     assert not X_ro["q1"].to_numpy().flags.writeable
-    assert_array_equal(_tiny(Est).fit(X_ro, y_ro).predict(X_ro), pred)
+    assert_array_equal(tiny_residual(Est).fit(X_ro, y_ro).predict(X_ro), pred)
 
 
 @pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
 def test_empty_and_non_dataframe_input(Est, small):
     _, Xb, y = small
-    est = _tiny(Est) if Est is not NoResidual else NoResidual()
+    est = tiny_residual(Est) if Est is not NoResidual else NoResidual()
     with pytest.raises(ValueError, match="empty"):
         est.fit(Xb.iloc[:0], y[:0])
     with pytest.raises(TypeError, match="DataFrame"):
@@ -668,26 +650,26 @@ def test_empty_and_non_dataframe_input(Est, small):
 def test_fit_rejects_bad_targets(Est, small):
     _, Xb, y = small
     with pytest.raises(ValueError, match="rows"):
-        _tiny(Est).fit(Xb, y[:-1])
+        tiny_residual(Est).fit(Xb, y[:-1])
     y_inf = y.copy()
     y_inf[-3, 1] = np.inf
     with pytest.raises(ValueError, match="infinite"):
-        _tiny(Est).fit(Xb, y_inf)
+        tiny_residual(Est).fit(Xb, y_inf)
     with pytest.raises(ValueError):
-        _tiny(Est).fit(Xb, y[:, :2])
+        tiny_residual(Est).fit(Xb, y[:, :2])
 
 
 def test_tracker_dropouts_in_y_are_skipped(small):
     _, Xb, y = small
     y_nan = y.copy()
     y_nan[::7] = np.nan
-    est = _tiny(GRUResidual).fit(Xb, y_nan)
+    est = tiny_residual(GRUResidual).fit(Xb, y_nan)
     assert np.isfinite(est.predict(Xb)).all()
     assert np.isfinite(est.history[:, "train_loss"]).all()
     y_none = y.copy()
     y_none[_motion(Xb)] = np.nan
     with pytest.raises(ValueError, match="no finite tip position"):
-        _tiny(GRUResidual).fit(Xb, y_none)
+        tiny_residual(GRUResidual).fit(Xb, y_none)
 
 
 # ---------------------------------------------------------------------------
@@ -696,7 +678,7 @@ def test_tracker_dropouts_in_y_are_skipped(small):
 @pytest.mark.parametrize("Est", [*LEARNERS, NoResidual])
 def test_missing_backbone_columns(Est, small):
     X, _, y = small
-    est = _tiny(Est) if Est is not NoResidual else NoResidual()
+    est = tiny_residual(Est) if Est is not NoResidual else NoResidual()
     with pytest.raises(ValueError, match="b_x") as info:
         est.fit(X, y)
     assert "PDLBackbone" in str(info.value) and "Pipeline" in str(info.value)
@@ -716,14 +698,14 @@ def test_bad_backbone_values_and_columns_at_predict(Est, small, fitted):
         est.predict(Xb.drop(columns="b_z"))
     if Est is not NoResidual:
         with pytest.raises(ValueError, match="b_y"):
-            _tiny(Est).fit(bad, y)
+            tiny_residual(Est).fit(bad, y)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_fit_needs_y(Est, small):
     _, Xb, _ = small
     for method in ("fit", "partial_fit"):
-        est = _tiny(Est)
+        est = tiny_residual(Est)
         with pytest.raises(ValueError, match="tip positions y"):
             getattr(est, method)(Xb, None)
         assert not hasattr(est, "sigma_e_")
@@ -747,7 +729,7 @@ def test_fit_needs_y(Est, small):
 )
 def test_bad_parameters_raise_value_error(Est, params, name, small):
     _, Xb, y = small
-    est = _tiny(Est, **params)
+    est = tiny_residual(Est, **params)
     with pytest.raises(ValueError, match=name):
         est.fit(Xb, y)
     assert not hasattr(est, "sigma_e_")
@@ -756,7 +738,7 @@ def test_bad_parameters_raise_value_error(Est, params, name, small):
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_not_fitted(Est, small):
     _, Xb, y = small
-    est = _tiny(Est)
+    est = tiny_residual(Est)
     with pytest.raises(NotFittedError):
         est.predict(Xb)
     with pytest.raises(NotFittedError):
@@ -776,13 +758,13 @@ def test_pretrained_starts_from_the_fitted_weights(Est, small, fitted):
     source, pred = fitted(Est)
     weights = {k: v.clone() for k, v in source.module_.state_dict().items()}
     # no training: the pretrained model's predictions, and its statistics
-    same = _tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    same = tiny_residual(Est, max_epochs=0, pretrained=FrozenEstimator(source)).fit(Xb, y)
     assert_array_equal(same.predict(Xb), pred)
     assert_array_equal(same.sigma_e_, source.sigma_e_)
     assert same.module_ is not source.module_
     # fine-tuning changes the copy, not the source; the statistics are kept
     # even though the data are different
-    tuned = _tiny(Est, max_epochs=1, lr=1e-2, pretrained=FrozenEstimator(source))
+    tuned = tiny_residual(Est, max_epochs=1, lr=1e-2, pretrained=FrozenEstimator(source))
     part = (Xb["setting"] != "S02").to_numpy()
     tuned.fit(Xb[part], y[part])
     assert np.abs(tuned.predict(Xb) - pred).max() > 1e-4
@@ -791,9 +773,10 @@ def test_pretrained_starts_from_the_fitted_weights(Est, small, fitted):
         assert torch.equal(value, weights[key])
     assert_array_equal(source.predict(Xb), pred)
     # FrozenEstimator survives clone; the fine-tuned start is not a random one
-    from_clone = clone(_tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)))
+    from_clone = clone(tiny_residual(Est, max_epochs=0, pretrained=FrozenEstimator(source)))
     assert_array_equal(from_clone.fit(Xb, y).predict(Xb), pred)
-    assert np.abs(_tiny(Est, max_epochs=0, random_state=5).fit(Xb, y).predict(Xb) - pred).max() > 0
+    random_start = tiny_residual(Est, max_epochs=0, random_state=5).fit(Xb, y).predict(Xb)
+    assert np.abs(random_start - pred).max() > 0
 
 
 @pytest.mark.parametrize("Est", LEARNERS)
@@ -801,25 +784,25 @@ def test_pretrained_errors(Est, small, fitted):
     _, Xb, y = small
     source, _ = fitted(Est)
     with pytest.raises(NotFittedError, match="FrozenEstimator"):
-        _tiny(Est, pretrained=Est()).fit(Xb, y)
+        tiny_residual(Est, pretrained=Est()).fit(Xb, y)
     # a plain fitted estimator loses its weights when cloned
     with pytest.raises(NotFittedError, match="FrozenEstimator"):
-        clone(_tiny(Est, pretrained=source)).fit(Xb, y)
+        clone(tiny_residual(Est, pretrained=source)).fit(Xb, y)
     with pytest.raises(ValueError, match="use_torque"):
-        _tiny(Est, use_torque=False, pretrained=FrozenEstimator(source)).fit(Xb, y)
+        tiny_residual(Est, use_torque=False, pretrained=FrozenEstimator(source)).fit(Xb, y)
     with pytest.raises(ValueError, match="use_context"):
-        _tiny(Est, use_context=False, pretrained=source).fit(Xb, y)
+        tiny_residual(Est, use_context=False, pretrained=source).fit(Xb, y)
     other = MLPResidual if Est is GRUResidual else GRUResidual
     with pytest.raises(TypeError, match=Est.__name__):
-        _tiny(Est, pretrained=fitted(other)[0]).fit(Xb, y)
+        tiny_residual(Est, pretrained=fitted(other)[0]).fit(Xb, y)
     with pytest.raises(ValueError, match="frame"):
-        _tiny(Est, frame="base", pretrained=FrozenEstimator(source)).fit(Xb, y)
+        tiny_residual(Est, frame="base", pretrained=FrozenEstimator(source)).fit(Xb, y)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_warm_start_continues_training(Est, small):
     _, Xb, y = small
-    est = _tiny(Est, warm_start=True)
+    est = tiny_residual(Est, warm_start=True)
     est.fit(Xb, y)
     assert len(est.history) == 2
     module, scaler = est.module_, est.x_scaler_
@@ -831,7 +814,7 @@ def test_warm_start_continues_training(Est, small):
     # partial_fit continues as well; without warm start, fit starts over
     est.partial_fit(Xb, y)
     assert len(est.history) == 6
-    cold = _tiny(Est)
+    cold = tiny_residual(Est)
     cold.fit(Xb, y)
     cold.fit(Xb, y)
     assert len(cold.history) == 2
@@ -850,7 +833,7 @@ def test_whole_sequence_training(Est, small, monkeypatch):
         return original(self, X, y, **fit_params)
 
     monkeypatch.setattr(Est, "get_split_datasets", spy)
-    est = _tiny(Est, window=None, burn_in=500).fit(Xb, y)
+    est = tiny_residual(Est, window=None, burn_in=500).fit(Xb, y)
     data = calls[0]
     assert data["features"].shape == (len(SMALL_SETTINGS), N_MOTION, 9)
     assert data["mask"].sum() == _motion(Xb).sum()
@@ -863,12 +846,12 @@ def test_whole_sequence_training(Est, small, monkeypatch):
 def test_first_partial_fit_is_fit(Est, small, fitted):
     _, Xb, y = small
     source, pred = fitted(Est)
-    est = _tiny(Est)
+    est = tiny_residual(Est)
     assert est.partial_fit(Xb, y) is est
     assert len(est.history) == 2
     assert_array_equal(est.predict(Xb), pred)
     # including the start from a pretrained model
-    tuned = _tiny(Est, max_epochs=0, pretrained=FrozenEstimator(source)).partial_fit(Xb, y)
+    tuned = tiny_residual(Est, max_epochs=0, pretrained=FrozenEstimator(source)).partial_fit(Xb, y)
     assert_array_equal(tuned.predict(Xb), pred)
 
 
@@ -884,7 +867,7 @@ def test_validation_holds_out_whole_settings(small, monkeypatch):
         return out
 
     monkeypatch.setattr(GRUResidual, "get_split_datasets", spy)
-    est = _tiny(GRUResidual, validation_fraction=0.3, max_epochs=3).fit(X4, y4)
+    est = tiny_residual(GRUResidual, validation_fraction=0.3, max_epochs=3).fit(X4, y4)
     valid_loss = est.history[:, "valid_loss"]
     assert len(valid_loss) == 3 and np.isfinite(valid_loss).all()
     assert est.predict(X4).shape == (len(X4), 3)
@@ -906,7 +889,7 @@ def test_validation_holds_out_whole_settings(small, monkeypatch):
     assert in_train | in_valid == set(SMALL_SETTINGS)
     assert len(train.indices) + len(valid.indices) == len(window_setting)
     # the split is seeded: the same settings are held out again
-    _tiny(GRUResidual, validation_fraction=0.3, max_epochs=1).fit(X4, y4)
+    tiny_residual(GRUResidual, validation_fraction=0.3, max_epochs=1).fit(X4, y4)
     assert_array_equal(calls[-1][1][1].indices, valid.indices)
 
 
@@ -921,7 +904,7 @@ def test_early_stopping_restores_the_best_epoch(small, monkeypatch):
         return out
 
     monkeypatch.setattr(MLPResidual, "get_split_datasets", spy)
-    est = _tiny(
+    est = tiny_residual(
         MLPResidual, validation_fraction=0.3, n_iter_no_change=2, max_epochs=30, lr=0.3
     ).fit(Xb, y)
     valid_loss = np.asarray(est.history[:, "valid_loss"])
@@ -943,7 +926,7 @@ def test_validation_needs_two_settings(small):
     _, Xb, y = small
     rows = (Xb["setting"] == "S02").to_numpy()
     with pytest.raises(ValueError, match="two shaft settings"):
-        _tiny(GRUResidual, validation_fraction=0.3).fit(Xb[rows], y[rows])
+        tiny_residual(GRUResidual, validation_fraction=0.3).fit(Xb[rows], y[rows])
 
 
 # ---------------------------------------------------------------------------
@@ -956,12 +939,12 @@ def test_without_torque_the_torques_are_not_used(Est, small, fitted):
     other_tau = Xb.assign(
         tau1=rng.normal(0.0, 30.0, len(Xb)), tau2=rng.normal(0.0, 30.0, len(Xb))
     )
-    est = _tiny(Est, use_torque=False).fit(Xb, y)
+    est = tiny_residual(Est, use_torque=False).fit(Xb, y)
     assert est.x_scaler_.mean.shape == (7,) and est.s_scaler_.mean.shape == (2,)
     pred = est.predict(Xb)
     assert_array_equal(est.predict(other_tau), pred)
     # nor are they used in fit
-    assert_array_equal(_tiny(Est, use_torque=False).fit(other_tau, y).predict(Xb), pred)
+    assert_array_equal(tiny_residual(Est, use_torque=False).fit(other_tau, y).predict(Xb), pred)
     # while the default learner does use them
     with_torque, pred_torque = fitted(Est)
     assert np.abs(with_torque.predict(other_tau) - pred_torque).max() > 1e-4
@@ -981,7 +964,7 @@ def test_without_context_the_sweep_is_not_used(Est, small, fitted):
     for c in ("q1", "q2", "tau1", "tau2"):
         other_sweep.loc[change, c] = rng.normal(0.0, 20.0, change.sum())
     # frame="sweep" would read the sweep for the frame; the context must not
-    est = _tiny(Est, use_context=False, frame="base").fit(Xb, y)
+    est = tiny_residual(Est, use_context=False, frame="base").fit(Xb, y)
     assert est.module_.encoder is None
     pred = est.predict(Xb)
     assert_array_equal(est.predict(other_sweep), pred)
@@ -1014,13 +997,13 @@ def test_sweep_frame_makes_the_residual_independent_of_the_sensor_mount(Est, sma
     def rotated(r):
         return np.einsum("nij,nj->ni", Gr, r)
 
-    est = _tiny(Est, clip=None).fit(Xb, y)
+    est = tiny_residual(Est, clip=None).fit(Xb, y)
     assert_allclose(est.predict_residual(Xr), rotated(est.predict_residual(Xb)), atol=1e-3)
     # and training on remounted catheters learns the same model
-    remounted = _tiny(Est, clip=None).fit(Xr, yr)
+    remounted = tiny_residual(Est, clip=None).fit(Xr, yr)
     assert_allclose(remounted.predict_residual(Xr), rotated(est.predict_residual(Xb)), atol=1e-3)
     # in the base frame the network sees the mount, and the residual changes
-    base = _tiny(Est, clip=None, frame="base").fit(Xb, y)
+    base = tiny_residual(Est, clip=None, frame="base").fit(Xb, y)
     moved = np.abs(base.predict_residual(Xr) - rotated(base.predict_residual(Xb)))
     assert moved.max() > 0.1
 
@@ -1047,7 +1030,7 @@ def test_no_residual_returns_the_backbone(small):
 # ---------------------------------------------------------------------------
 def test_cross_validate_with_groups(small):
     X, _, y = small
-    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(GRUResidual))])
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", tiny_residual(GRUResidual))])
     out = cross_validate(
         pipe, X, y, groups=X["setting"], cv=GroupKFold(2), scoring=run_rmse_scorer
     )
@@ -1061,7 +1044,7 @@ def test_grid_search_over_backbones_and_residuals(small):
     pipe = Pipeline([("backbone", PDLBackbone()), ("residual", NoResidual())])
     grid = {
         "backbone": [PCCBackbone(), PDLBackbone()],
-        "residual": [NoResidual(), _tiny(MLPResidual), _tiny(GRUResidual)],
+        "residual": [NoResidual(), tiny_residual(MLPResidual), tiny_residual(GRUResidual)],
     }
     search = GridSearchCV(pipe, grid, cv=GroupKFold(2), scoring=run_rmse_scorer)
     search.fit(X, y, groups=X["setting"])
@@ -1086,7 +1069,7 @@ def test_grid_search_over_backbones_and_residuals(small):
 def test_grid_search_over_nested_learner_parameters(small):
     """Ablation switches and module parameters are grid parameters."""
     X, _, y = small
-    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", _tiny(GRUResidual))])
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", tiny_residual(GRUResidual))])
     grid = {"residual__use_context": [True, False], "residual__module__hidden_size": [4, 6]}
     search = GridSearchCV(pipe, grid, cv=GroupKFold(2), scoring=run_rmse_scorer).fit(
         X, y, groups=X["setting"]

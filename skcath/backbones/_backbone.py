@@ -30,6 +30,32 @@ __all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone"]
 BACKBONE_COLUMNS = ("b_x", "b_y", "b_z")
 
 
+# Docstring entries shared by both backbones, placed into their class
+# docstrings (f-strings) at the indentation of a parameter entry.
+_SWEEP_LAYOUT_PARAMS = """n_rays : int, default=8
+        Number of rays of the initial sweep (at least 3); a sweep with
+        another number of rays is rejected.
+    ray_spacing_deg : float, default=None
+        Angle between neighbouring directions of the sweep layout (degrees);
+        None means ``360 / n_rays`` (evenly spaced rays). Give the spacing of
+        the full layout when the sweep keeps only some of its rays, e.g.
+        ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
+        (:func:`skcath.sweep.reduce_sweep`); see
+        :func:`skcath.sweep.find_rays`."""
+
+_N_JOBS_PARAM = """n_jobs : int, default=None
+        Runs calibrated in parallel (joblib); None means 1."""
+
+_CALIBRATION_ATTRIBUTES = """feature_names_in_ : ndarray of str
+        Columns of ``X`` seen in ``fit``.
+    n_features_in_ : int
+        Number of columns of ``X`` seen in ``fit``.
+    calibrations_ : pandas.DataFrame
+        Set by ``transform`` / ``predict``: one row per run of the last call,
+        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
+        of iterations and whether the solver converged."""
+
+
 def _calibrate_run(backbone, run, q, ref, sweep):
     """Calibrate one run on its sweep rows and evaluate it on all its rows."""
     q_sweep, ref_sweep = q[sweep], ref[sweep]
@@ -175,20 +201,20 @@ def _summary(info):
 
 
 class PCCBackbone(_BaseBackbone):
-    """Piecewise-constant-curvature backbone calibrated on each run's sweep.
+    __doc__ = f"""Piecewise-constant-curvature backbone calibrated on each run's sweep.
 
     Paper eqs. 3-4: with the bending coordinates
 
     .. math::
 
-        u = C \\frac{q - q_0}{S_m} + u_0, \\qquad \\alpha = \\lVert u \\rVert_2,
+        u = C \\frac{{q - q_0}}{{S_m}} + u_0, \\qquad \\alpha = \\lVert u \\rVert_2,
 
     the nominal tip position in the base frame is
 
     .. math::
 
-        g(q) = L R_g \\begin{bmatrix} u_1 (1 - \\cos\\alpha)/\\alpha^2 \\\\
-        u_2 (1 - \\cos\\alpha)/\\alpha^2 \\\\ \\sin\\alpha / \\alpha \\end{bmatrix},
+        g(q) = L R_g \\begin{{bmatrix}} u_1 (1 - \\cos\\alpha)/\\alpha^2 \\\\
+        u_2 (1 - \\cos\\alpha)/\\alpha^2 \\\\ \\sin\\alpha / \\alpha \\end{{bmatrix}},
 
     with the continuous limits at :math:`\\alpha = 0`. For every run, ``q0``
     is the neutral motor position and ``S_m`` the amplitude of its sweep
@@ -200,31 +226,14 @@ class PCCBackbone(_BaseBackbone):
 
     Parameters
     ----------
-    n_rays : int, default=8
-        Number of rays of the initial sweep (at least 3); a sweep with
-        another number of rays is rejected.
-    ray_spacing_deg : float, default=None
-        Angle between neighbouring directions of the sweep layout (degrees);
-        None means ``360 / n_rays`` (evenly spaced rays). Give the spacing of
-        the full layout when the sweep keeps only some of its rays, e.g.
-        ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
-        (:func:`skcath.sweep.reduce_sweep`); see
-        :func:`skcath.sweep.find_rays`.
+    {_SWEEP_LAYOUT_PARAMS}
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per calibration.
-    n_jobs : int, default=None
-        Runs calibrated in parallel (joblib); None means 1.
+    {_N_JOBS_PARAM}
 
     Attributes
     ----------
-    feature_names_in_ : ndarray of str
-        Columns of ``X`` seen in ``fit``.
-    n_features_in_ : int
-        Number of columns of ``X`` seen in ``fit``.
-    calibrations_ : pandas.DataFrame
-        Set by ``transform`` / ``predict``: one row per run of the last call,
-        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
-        of iterations and whether the solver converged.
+    {_CALIBRATION_ATTRIBUTES}
     calibration_params_ : dict
         Run id -> :class:`PCCParams` of the last call, usable with
         :func:`pcc_tip`.
@@ -260,7 +269,7 @@ class PCCBackbone(_BaseBackbone):
 
 
 class PDLBackbone(_BaseBackbone):
-    """Per-direction backbone (PDL) calibrated on each run's sweep.
+    __doc__ = f"""Per-direction backbone (PDL) calibrated on each run's sweep.
 
     Paper eq. 5: along each sweep ray of direction :math:`\\psi`, with
     :math:`\\rho = \\lVert q - q_n \\rVert_2` (degrees),
@@ -282,31 +291,14 @@ class PDLBackbone(_BaseBackbone):
 
     Parameters
     ----------
-    n_rays : int, default=8
-        Number of rays of the initial sweep (at least 3); a sweep with
-        another number of rays is rejected.
-    ray_spacing_deg : float, default=None
-        Angle between neighbouring directions of the sweep layout (degrees);
-        None means ``360 / n_rays`` (evenly spaced rays). Give the spacing of
-        the full layout when the sweep keeps only some of its rays, e.g.
-        ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
-        (:func:`skcath.sweep.reduce_sweep`); see
-        :func:`skcath.sweep.find_rays`.
+    {_SWEEP_LAYOUT_PARAMS}
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per ray.
-    n_jobs : int, default=None
-        Runs calibrated in parallel (joblib); None means 1.
+    {_N_JOBS_PARAM}
 
     Attributes
     ----------
-    feature_names_in_ : ndarray of str
-        Columns of ``X`` seen in ``fit``.
-    n_features_in_ : int
-        Number of columns of ``X`` seen in ``fit``.
-    calibrations_ : pandas.DataFrame
-        Set by ``transform`` / ``predict``: one row per run of the last call,
-        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
-        of iterations and whether the solver converged.
+    {_CALIBRATION_ATTRIBUTES}
     calibration_params_ : dict
         Run id -> :class:`PDLParams` of the last call, usable with
         :func:`pdl_tip`.

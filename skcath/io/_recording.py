@@ -17,6 +17,7 @@ Column names used here (the "skcath names"):
   (positions in mm, quaternions named by component).
 """
 
+import inspect
 import numbers
 from pathlib import Path, PurePath
 
@@ -1048,18 +1049,18 @@ def read_recording(
 
 def _check_options(
     *,
-    columns=None,
-    quat_order="wxyz",
-    catheter=None,
-    setting=None,
-    run=None,
-    rate_hz=None,
-    constants=None,
-    scale=None,
-    phase=None,
-    n_sweep=None,
-    valid=None,
-    tip_offset=None,
+    columns,
+    quat_order,
+    catheter,
+    setting,
+    run,
+    rate_hz,
+    constants,
+    scale,
+    phase,
+    n_sweep,
+    valid,
+    tip_offset,
 ):
     """Validate the reading options of :func:`read_recording`.
 
@@ -1067,7 +1068,8 @@ def _check_options(
     ----------
     columns, quat_order, catheter, setting, run, rate_hz, constants, scale, \
 phase, n_sweep, valid, tip_offset
-        As in :func:`read_recording`.
+        As in :func:`read_recording`; all required (the defaults are those of
+        :func:`read_recording`, see ``_OPTION_DEFAULTS``).
 
     Returns
     -------
@@ -1107,21 +1109,14 @@ phase, n_sweep, valid, tip_offset
     }
 
 
-#: Keyword options of :func:`read_recording` that the other readers pass on.
-_OPTION_NAMES = (
-    "columns",
-    "quat_order",
-    "catheter",
-    "setting",
-    "run",
-    "rate_hz",
-    "constants",
-    "scale",
-    "phase",
-    "n_sweep",
-    "valid",
-    "tip_offset",
-)
+#: Keyword options of :func:`read_recording` that the other readers pass on,
+#: with their defaults, taken from its signature (the single place they are set).
+_OPTION_DEFAULTS = {
+    name: parameter.default
+    for name, parameter in inspect.signature(read_recording).parameters.items()
+    if parameter.kind is inspect.Parameter.KEYWORD_ONLY
+}
+_OPTION_NAMES = tuple(_OPTION_DEFAULTS)
 
 
 def _options_from_kwargs(kwargs, caller):
@@ -1152,7 +1147,7 @@ def _options_from_kwargs(kwargs, caller):
             f"{caller}() got the unknown keyword argument(s) {unknown}; the reading "
             f"options are {list(_OPTION_NAMES)}."
         )
-    return _check_options(**kwargs)
+    return _check_options(**{**_OPTION_DEFAULTS, **kwargs})
 
 
 def _recording_from_frame(frame, name, stem, options):

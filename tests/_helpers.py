@@ -1,0 +1,92 @@
+"""Builders shared by several test modules: tiny estimators, schedules and data.
+
+Imported as ``from _helpers import ...`` (pytest puts the ``tests`` folder on
+``sys.path``, as it holds no ``__init__.py``).
+"""
+
+import numpy as np
+
+from skcath.datasets import make_benchmark
+from skcath.protocol import Schedule
+from skcath.residuals import GRUResidual
+
+
+def tiny_residual(Est, *, max_epochs=2, **params):
+    """A residual learner small enough to train in well under a second.
+
+    Parameters
+    ----------
+    Est : {GRUResidual, MLPResidual}
+        The residual learner class.
+    max_epochs : int, default=2
+        Training epochs.
+    **params
+        Other estimator parameters; they override the tiny defaults.
+
+    Returns
+    -------
+    est : Est
+        Unfitted, single-threaded, seeded with ``random_state=0`` unless given.
+    """
+    base = dict(
+        max_epochs=max_epochs,
+        batch_size=16,
+        window=50,
+        burn_in=10,
+        sweep_stride=50,
+        n_threads=1,
+        random_state=0,
+        module__hidden_size=8,
+        module__encoder_hidden_size=8,
+        module__context_size=4,
+    )
+    if Est is GRUResidual:
+        base["module__head_hidden_size"] = 8
+    base.update(params)
+    return Est(**base)
+
+
+def tiny_schedule(*, seeds, variants):
+    """A protocol schedule of two setting folds, small networks and one epoch per stage.
+
+    Parameters
+    ----------
+    seeds : tuple of int
+        Seeds of the learned models.
+    variants : tuple of str
+        Learned methods run (names of ``skcath.protocol.VARIANTS``).
+
+    Returns
+    -------
+    schedule : skcath.protocol.Schedule
+        Named ``"tiny"``.
+    """
+    return Schedule(
+        name="tiny",
+        seeds=seeds,
+        n_setting_folds=2,
+        variants=variants,
+        model_params={"module__hidden_size": 8, "window_step": 200},
+        pretrain_params={"max_epochs": 1},
+        finetune_params={"max_epochs": 1},
+    )
+
+
+def benchmark_settings(settings):
+    """Recordings of the default benchmark (two catheters, one run each) of ``settings``.
+
+    Parameters
+    ----------
+    settings : sequence of str
+        Shaft settings kept, e.g. ``("S00", "S01")``.
+
+    Returns
+    -------
+    X : pandas.DataFrame
+        The kept rows, index ``0 .. n-1``.
+    y : ndarray of shape (n_rows, 3)
+        Their tip positions (mm, float).
+    """
+    bench = make_benchmark(n_catheters=2, n_runs=1)
+    keep = bench.X["setting"].astype(str).isin(settings).to_numpy()
+    return bench.X[keep].reset_index(drop=True), np.asarray(bench.y, dtype=float)[keep]
