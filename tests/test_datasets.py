@@ -812,3 +812,32 @@ def test_shaft_change_keeps_the_default_benchmark_and_its_cache(small_benchmark,
 def test_make_benchmark_rejects_bad_shaft_change(tmp_path):
     with pytest.raises(ValueError, match="shaft_change"):
         make_benchmark(n_catheters=1, n_runs=1, shaft_change="yes", data_home=tmp_path)
+
+
+def test_unit_spread_narrows_the_unit_parameters_but_not_the_set_up():
+    # Simulator version 6: a unit's parameters are draws pulled towards the
+    # middle of the family's range by UNIT_SPREAD; the direction-dependent
+    # routing terms, the tendon-to-tendon gain differences and the set-up
+    # (motor offsets, base-sensor mount) are drawn over the whole range.
+    from skcath.datasets._catheter import UNIT_SPREAD
+
+    assert 0 < UNIT_SPREAD < 1
+    cats = [sample_catheter(seed) for seed in range(300)]
+    mu = np.array([c.mu for c in cats])  # family range U(0.10, 0.20)
+    half = 0.5 * UNIT_SPREAD * 0.10
+    assert np.all(np.abs(mu - 0.15) <= half + 1e-12)
+    assert mu.max() - mu.min() > 1.8 * half  # the narrowed range is used, not a constant
+    length = np.array([c.length for c in cats])  # U(38, 46)
+    assert np.all(np.abs(length - 42.0) <= 0.5 * UNIT_SPREAD * 8.0 + 1e-12)
+    # gains: the unit's mean is narrowed (sd 0.2 / 2 -> 0.35 of it), the
+    # differences between its four tendons keep sd 0.2 sqrt(3/4)
+    relative = np.array([c.gains / np.deg2rad(3.2) for c in cats]).reshape(len(cats), 4)
+    unit_mean = relative.mean(axis=1)
+    assert 0.5 * UNIT_SPREAD * 0.1 < unit_mean.std() < 1.5 * UNIT_SPREAD * 0.1
+    within = (relative - unit_mean[:, None]).std()
+    assert 0.8 * 0.2 * np.sqrt(0.75) < within < 1.2 * 0.2 * np.sqrt(0.75)
+    # kept whole: routing phases over the circle, motor offsets N(0, 1.5^2)
+    phases = np.concatenate([c.route_phases for c in cats])
+    assert phases.max() - phases.min() > 0.9 * 2 * np.pi
+    offsets = np.concatenate([c.offsets for c in cats])
+    assert 1.2 < offsets.std() < 1.8

@@ -326,17 +326,12 @@ def test_errors_name_the_argument():
 # ---------------------------------------------------------------------------
 # simulated sweeps (not PCC: a few mm of model error)
 # ---------------------------------------------------------------------------
-_V5_HIGH_BEND = pytest.mark.xfail(
-    strict=True,
-    reason="simulator version 5: the wide play of a high bend shrinks the sweep's spread to "
-    "about 12 mm, so the hysteresis loops exceed 0.6 of it (known simulator defect)",
-)
-
-
-@pytest.mark.parametrize(
-    "seed, setting",
-    [(0, "S00"), (1, "S05"), (2, "S12"), pytest.param(3, "S16", marks=_V5_HIGH_BEND)],
-)
+# Measured fit RMSE / sweep spread (simulator version 6): S00 7.13 / 28.2 mm
+# (0.25), S05 5.81 / 18.8 (0.31), S12 6.89 / 12.0 (0.58), S16 6.21 / 10.5 (0.59).
+# On version 5 the loops of the unit of seed 3 at the high bend S16 exceeded 0.6
+# of the spread (7.32 / 12.1 mm, 0.604); version 6 pulls that unit's parameters
+# towards the family's middle and the ratio is 0.594, just inside the bound.
+@pytest.mark.parametrize("seed, setting", [(0, "S00"), (1, "S05"), (2, "S12"), (3, "S16")])
 def test_fits_simulated_sweep(seed, setting):
     q, p = simulated_sweep(seed, setting, dropout_rate=0.02)
     prm, info = calibrate_pcc(q, p, return_info=True)

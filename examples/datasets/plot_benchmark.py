@@ -301,7 +301,7 @@ plt.show()
 # The friction in the sheath grows with the capstan wrap of the tendons, so
 # the loop widens **in motor degrees** from the straight shaft to the high
 # bend, by about 4.5 degrees per level on average: the no-load play of each
-# tendon pair scales with the pair's own wrap (simulator version 5). The
+# tendon pair scales with the pair's own wrap (from simulator version 5). The
 # torque gap depends strongly on the unit (the two clusters of runs are the
 # two catheters) and changes little with the level: a wide no-load play
 # leaves part of the friction elements between their branches, so the

@@ -21,7 +21,7 @@ __all__ = ["get_data_home", "clear_data_home", "make_benchmark", "SIMULATOR_VERS
 logger = logging.getLogger(__name__)
 
 #: Bumped whenever the simulator's output changes, so stale caches are not reused.
-SIMULATOR_VERSION = "5"
+SIMULATOR_VERSION = "6"
 
 
 def get_data_home(data_home=None):

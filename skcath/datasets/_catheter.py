@@ -233,6 +233,17 @@ class Catheter:
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
 
 
+#: Unit-to-unit spread of the family (version 6): every unit parameter is
+#: drawn from its range and then pulled towards the middle of that range by
+#: this factor, ``middle + UNIT_SPREAD (draw - middle)``. See ``sample_catheter``.
+UNIT_SPREAD = 0.35
+
+
+def _toward(value, middle):
+    """``value`` pulled towards ``middle`` by :data:`UNIT_SPREAD`."""
+    return middle + UNIT_SPREAD * (np.asarray(value, dtype=float) - middle)
+
+
 def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
     """Draw one catheter unit of the family.
 
@@ -250,14 +261,27 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
     catheter : Catheter
     """
     rng = np.random.default_rng(random_state)
-    u = rng.uniform
-    n = rng.normal
-    gains = np.deg2rad(gain_deg_per_deg) * (1.0 + n(0.0, 0.2, size=(2, 2)))
-    tilt_axis = n(size=2)
+
+    def u(low, high, size=None):
+        # a unit's value: a draw from the family's range, pulled towards its middle
+        return _toward(rng.uniform(low, high, size), 0.5 * (low + high))
+
+    def n(mean=0.0, sd=1.0, size=None):
+        return _toward(rng.normal(mean, sd, size), mean)
+
+    # the four tendon gains: the unit's mean gain is narrowed, the differences
+    # between its tendons (direction-dependent, what PDL captures and PCC
+    # cannot) are kept whole
+    relative = 1.0 + rng.normal(0.0, 0.2, size=(2, 2))
+    mean_gain = relative.mean()
+    gains = np.deg2rad(gain_deg_per_deg) * (relative - mean_gain + _toward(mean_gain, 1.0))
+    # the mounting of the base sensor is a property of the set-up, not of the
+    # unit: drawn over the whole range
+    tilt_axis = rng.normal(size=2)
     tilt_axis /= np.linalg.norm(tilt_axis)
-    tilt = np.deg2rad(u(25.0, 35.0))
+    tilt = np.deg2rad(rng.uniform(25.0, 35.0))
     mount = Rotation.from_rotvec(np.r_[tilt * tilt_axis, 0.0]) * Rotation.from_rotvec(
-        [0.0, 0.0, u(-np.pi, np.pi)]
+        [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
     )
     return Catheter(
         name=name,
@@ -267,11 +291,11 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
         split_bias=n(0.0, 0.12),
         split_slope=n(0.12, 0.04),
         max_bend=np.deg2rad(u(110.0, 150.0)),
-        twist=n(0.0, 0.15),
-        coupling=n(0.0, 0.06, size=2),
-        rest_bend=np.deg2rad(n(0.0, 2.0, size=2)),
+        twist=rng.normal(0.0, 0.15),
+        coupling=rng.normal(0.0, 0.06, size=2),
+        rest_bend=np.deg2rad(rng.normal(0.0, 2.0, size=2)),
         gains=gains,
-        offsets=n(0.0, 1.5, size=2),
+        offsets=rng.normal(0.0, 1.5, size=2),  # where the robot's adapter grips the knobs
         mu=u(0.10, 0.20),
         play_w0=u(3.0, 5.0),
         play_growth_base=u(0.03, 0.06),
@@ -285,11 +309,11 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
         dead_zone0=u(2.0, 4.0),
         dead_zone_growth=u(1.0, 2.0),
         wrap_routing=u(0.3, 0.6),
-        route_a1=abs(n(0.0, 0.06)),
-        route_a3=n(0.0, 0.15),
-        route_b3=n(0.0, 0.15),
+        route_a1=abs(rng.normal(0.0, 0.06)),
+        route_a3=rng.normal(0.0, 0.15),
+        route_b3=rng.normal(0.0, 0.15),
         route_shift=u(0.07, 0.11),
-        route_phases=u(-np.pi, np.pi, size=3),
+        route_phases=rng.uniform(-np.pi, np.pi, size=3),  # angles on the circle: not narrowed
         windup=np.deg2rad(u(3.0, 5.0)),
         cross_load=u(0.2, 0.4),
         slow_creep_gain=u(0.06, 0.12),
@@ -309,7 +333,8 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
         torque_noise=3.0,
         torque_step=0.5,
         mount_rotvec=mount.as_rotvec(),
-        mount_position=np.array([n(0.0, 1.5), n(0.0, 1.5), -u(6.0, 14.0)]),
+        mount_position=np.array([rng.normal(0.0, 1.5), rng.normal(0.0, 1.5),
+                                 -rng.uniform(6.0, 14.0)]),
     )
 
 
