@@ -85,6 +85,36 @@ class PCCStep:
         )
 
 
+def pdl_section(gamma, dist, phi, big_p):
+    """Tip coordinates along the PDL basis from one ray's interpolated section.
+
+    Scalar, pure and free of numpy, so that the compiled engine compiles this
+    same function (``skcath.online._jit``) and both engines round alike.
+
+    Parameters
+    ----------
+    gamma : float
+        Bend angle of the section (rad).
+    dist : float
+        Chord length from the base to the tip (mm).
+    phi : float
+        Bend-plane angle about the basis' third axis (rad).
+    big_p : float
+        Norm of the straight tip position ``|p0|`` (mm).
+
+    Returns
+    -------
+    c1, c2, c3 : float
+        Coordinates along the three basis vectors (mm), before adding ``p0``.
+    """
+    h = 0.5 * gamma
+    ch, sh = math.cos(h), math.sin(h)
+    disc = dist * dist - (big_p * sh) ** 2
+    s = math.copysign(math.sqrt(abs(disc)), disc) if disc != 0.0 else 0.0
+    across = (big_p * ch + s) * sh
+    return across * math.cos(phi), across * math.sin(phi), s * ch - big_p * sh * sh
+
+
 class PDLStep:
     """Nominal tip of a calibrated PDL backbone for one motor sample.
 
@@ -131,15 +161,7 @@ class PDLStep:
         gamma = rho * ((wl * a[0] + w * b[0]) + (wl * a[1] + w * b[1]) * rho)
         dist = rho * ((wl * a[2] + w * b[2]) + (wl * a[3] + w * b[3]) * rho)
         phi = (wl * a[4] + w * b[4]) + (wl * a[5] + w * b[5]) * (rho - self.rho0)
-        h = 0.5 * gamma
-        ch, sh = math.cos(h), math.sin(h)
-        big_p = self.big_p
-        disc = dist * dist - (big_p * sh) ** 2
-        s = math.copysign(math.sqrt(abs(disc)), disc) if disc != 0.0 else 0.0
-        across = (big_p * ch + s) * sh
-        c1 = across * math.cos(phi)
-        c2 = across * math.sin(phi)
-        c3 = s * ch - big_p * sh * sh
+        c1, c2, c3 = pdl_section(gamma, dist, phi, self.big_p)
         B, p0 = self.basis, self.p0
         return (
             p0[0] + c1 * B[0] + c2 * B[3] + c3 * B[6],

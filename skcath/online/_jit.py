@@ -40,7 +40,7 @@ import numpy as np
 
 from ..backbones._pcc import _SERIES_MAX
 from ..backbones._pdl import _TWO_PI
-from ._fast import GRUStep, MLPStep, PCCStep, PDLStep
+from ._fast import GRUStep, MLPStep, PCCStep, PDLStep, pdl_section
 
 __all__ = ["JitStep", "step_kernel"]
 
@@ -117,14 +117,18 @@ def _pcc_tip(f, n_terms, q1, q2):
     )
 
 
+_pdl_section = _njit(pdl_section)
+
+
 @_njit
 def _pdl_tip(f, n_rays, q1, q2):
     """As :meth:`PDLStep.__call__`, parameters read from ``f``.
 
-    The arithmetic repeats :class:`~skcath.online._fast.PDLStep` line for
-    line on purpose: numba is optional, so the numpy engine cannot call this
-    compiled function, and the same order of operations keeps the two
-    engines equal to rounding (``tests/test_online_jit.py`` compares them).
+    The interpolation between rays repeats :class:`~skcath.online._fast.PDLStep`
+    with the parameters read from ``f``; the section's geometry is the same
+    function, :func:`~skcath.online._fast.pdl_section`, compiled. The same
+    order of operations keeps the two engines equal to rounding
+    (``tests/test_online_jit.py`` compares them).
     """
     o = _F_BACKBONE
     v1 = q1 - f[o]
@@ -149,15 +153,7 @@ def _pdl_tip(f, n_rays, q1, q2):
     gamma = rho * ((wl * f[a] + w * f[b]) + (wl * f[a + 1] + w * f[b + 1]) * rho)
     dist = rho * ((wl * f[a + 2] + w * f[b + 2]) + (wl * f[a + 3] + w * f[b + 3]) * rho)
     phi = (wl * f[a + 4] + w * f[b + 4]) + (wl * f[a + 5] + w * f[b + 5]) * (rho - f[o + 4])
-    h = 0.5 * gamma
-    ch, sh = math.cos(h), math.sin(h)
-    big_p = f[o + 5]
-    disc = dist * dist - (big_p * sh) ** 2
-    s = math.copysign(math.sqrt(abs(disc)), disc) if disc != 0.0 else 0.0
-    across = (big_p * ch + s) * sh
-    c1 = across * math.cos(phi)
-    c2 = across * math.sin(phi)
-    c3 = s * ch - big_p * sh * sh
+    c1, c2, c3 = _pdl_section(gamma, dist, phi, f[o + 5])
     p, B = o + 6, o + 9
     return (
         f[p] + c1 * f[B] + c2 * f[B + 3] + c3 * f[B + 6],
