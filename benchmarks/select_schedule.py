@@ -20,16 +20,25 @@ pretraining epochs.
 
 Usage::
 
-    python benchmarks/select_schedule.py                       # the default grid (~20 CPU-min)
+    python benchmarks/select_schedule.py                       # the default grid (~6 CPU-min)
     python benchmarks/select_schedule.py --grid 30:2:3e-3 20:8:3e-3 --n-jobs 2
+    python benchmarks/select_schedule.py --grid 30:2:3e-3:64 30:2:3e-3:32 \
+        --sweep-stride 20 --sweep-pooling subsample          # the earlier context input
 
-Each grid entry is ``PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR``. Nothing
-here looks at C2-C4's test errors.
+Each grid entry is ``PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR`` with an
+optional ``:FINETUNE_BATCH_SIZE`` (default 64; pretraining always uses 64).
+``--sweep-stride`` and ``--sweep-pooling`` set how the sweep is shortened
+for the context encoder in both stages; ``--param KEY=VALUE`` (repeatable)
+sets any other :class:`~skcath.residuals.GRUResidual` parameter in both
+stages (``--param module__hidden_size=64``, ``--param use_context=False``),
+and ``--pretrain-batch-size`` the pretraining's batch size. Nothing here
+looks at C2-C4's test errors.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import sys
 import time
 from collections import defaultdict
@@ -47,35 +56,58 @@ from skcath.residuals import GRUResidual
 
 #: The schedules compared by default (pretrain epochs, fine-tune epochs, fine-tune lr).
 DEFAULT_GRID = (
-    "20:8:3e-3", "20:4:3e-3", "20:4:6e-3", "25:3:3e-3", "30:2:3e-3", "30:8:3e-3",
+    "30:2:3e-3", "30:2:3e-3:32", "30:4:3e-3",
 )
 
 
 def _parse(entry):
     try:
-        pre, fine, lr = entry.split(":")
-        return int(pre), int(fine), float(lr)
+        parts = entry.split(":")
+        if len(parts) not in (3, 4):
+            raise ValueError
+        batch = int(parts[3]) if len(parts) == 4 else 64
+        return int(parts[0]), int(parts[1]), float(parts[2]), batch
     except ValueError:
         raise SystemExit(
-            f"--grid entries must read PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR "
-            f"(e.g. 30:2:3e-3); got {entry!r}."
+            f"--grid entries must read PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR[:BATCH_SIZE] "
+            f"(e.g. 30:2:3e-3 or 30:2:3e-3:32); got {entry!r}."
         ) from None
 
 
-def _learner(seed, **params):
-    return GRUResidual(random_state=seed, n_threads=1, **params)
+#: Learner parameters that the schedule itself sets.
+_SCHEDULE_KEYS = {"max_epochs", "lr", "batch_size", "pretrained", "random_state", "n_threads"}
 
 
-def _pretrain(epochs, seed, X, y):
+def _param(entry):
+    key, sep, value = entry.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"--param must read KEY=VALUE; got {entry!r}.")
+    if key in _SCHEDULE_KEYS:
+        raise argparse.ArgumentTypeError(
+            f"--param {key} is set by the schedule (--grid, --pretrain-batch-size, "
+            "--seed); give another parameter."
+        )
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return key, value  # a plain string such as frame=base
+
+
+def _learner(seed, context, **params):
+    return GRUResidual(random_state=seed, n_threads=1, **context, **params)
+
+
+def _pretrain(epochs, seed, context, batch, X, y):
     start = time.perf_counter()
-    model = _learner(seed, max_epochs=epochs, lr=1e-2).fit(X, y)
+    model = _learner(seed, context, max_epochs=epochs, lr=1e-2, batch_size=batch).fit(X, y)
     return epochs, model, time.perf_counter() - start
 
 
-def _finetune(key, pretrained, seed, X_train, y_train, X_test, test):
-    _, epochs, lr = key
+def _finetune(key, pretrained, seed, context, X_train, y_train, X_test, test):
+    _, epochs, lr, batch = key
     start = time.perf_counter()
-    model = _learner(seed, max_epochs=epochs, lr=lr, pretrained=FrozenEstimator(pretrained))
+    model = _learner(seed, context, max_epochs=epochs, lr=lr, batch_size=batch,
+                     pretrained=FrozenEstimator(pretrained))
     pred = model.fit(X_train, y_train).predict(X_test)
     return key, test, pred, time.perf_counter() - start
 
@@ -87,8 +119,18 @@ def main(argv=None):
     parser.add_argument("--catheter", default="C1", help="catheter evaluated (default: C1)")
     parser.add_argument("--seed", type=int, default=0, help="random_state (default: 0)")
     parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
+    parser.add_argument("--sweep-stride", type=int, default=40,
+                        help="sweep samples per context-encoder step (default: 40)")
+    parser.add_argument("--sweep-pooling", choices=("mean", "subsample"), default="mean",
+                        help="how a block of the sweep becomes one step (default: mean)")
+    parser.add_argument("--param", type=_param, action="append", default=[],
+                        metavar="KEY=VALUE", help="another GRUResidual parameter, both stages")
+    parser.add_argument("--pretrain-batch-size", type=int, default=64,
+                        help="batch size of the pretraining (default: 64)")
     args = parser.parse_args(argv)
     grid = [_parse(entry) for entry in args.grid]
+    context = {"sweep_stride": args.sweep_stride, "sweep_pooling": args.sweep_pooling,
+               **dict(args.param)}
 
     data = make_benchmark()
     X, y = data.X.reset_index(drop=True), np.asarray(data.y)
@@ -101,17 +143,18 @@ def main(argv=None):
     folds = list(LeaveOneSettingOut(exclude_settings=["S00"]).split(Xc))
 
     parallel = Parallel(n_jobs=args.n_jobs, max_nbytes=None)
-    pre_epochs = sorted({pre for pre, _, _ in grid})
+    pre_epochs = sorted({pre for pre, *_ in grid})
     print(f"pretraining {len(pre_epochs)} models on the other catheters ...", file=sys.stderr)
     pretrained = {
         epochs: (model, seconds)
         for epochs, model, seconds in parallel(
-            delayed(_pretrain)(epochs, args.seed, X_other, y_other) for epochs in pre_epochs
+            delayed(_pretrain)(epochs, args.seed, context, args.pretrain_batch_size,
+                                 X_other, y_other) for epochs in pre_epochs
         )
     }
     print(f"fine-tuning {len(grid)} x {len(folds)} models ...", file=sys.stderr)
     tasks = (
-        delayed(_finetune)(key, pretrained[key[0]][0], args.seed,
+        delayed(_finetune)(key, pretrained[key[0]][0], args.seed, context,
                            Xc.iloc[train], yc[train], Xc.iloc[test], test)
         for key in grid for train, test in folds
     )
@@ -130,17 +173,19 @@ def main(argv=None):
             for epochs, (model, _) in pretrained.items()}
     rows = []
     for key in grid:
-        pre, fine, lr = key
+        pre, fine, lr, batch = key
         within = mean_per_run_rmse(ye, predictions[key][evaluated], Xe)
         rows.append({
             "pretrain epochs": pre, "fine-tune epochs": fine, "fine-tune lr": lr,
+            "fine-tune batch": batch,
             "setting held out (mm)": within, "ratio to PDL": within / pdl,
             "catheter held out (mm)": loco[pre], "LOCO / setting held out": loco[pre] / within,
             "pretrain (s)": pretrained[pre][1],
             "fine-tune fold (s, median)": float(np.median(seconds[key])),
         })
     table = pd.DataFrame(rows)
-    print(f"catheter {args.catheter}, PDL+GRU, seed {args.seed}; PDL {pdl:.3f} mm")
+    print(f"catheter {args.catheter}, PDL+GRU, seed {args.seed}, pretraining batch "
+          f"{args.pretrain_batch_size}, learner {context}; PDL {pdl:.3f} mm")
     print(table.to_markdown(index=False, floatfmt=".3f"))
     return table
 

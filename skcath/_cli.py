@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--quick",
         action="store_true",
         help="short schedule (one seed, 4 setting folds per catheter, small networks): "
-        "about ten minutes on two CPU cores",
+        "about three minutes on two CPU cores",
     )
     repro.add_argument(
         "--out",

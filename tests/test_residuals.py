@@ -47,7 +47,7 @@ from skcath.residuals import (
     step_feature_names,
     sweep_feature_names,
 )
-from skcath.residuals._features import cut_windows, feature_frame, motor_deltas
+from skcath.residuals._features import cut_windows, feature_frame, motor_deltas, pool_sweep
 
 from _helpers import tiny_residual
 
@@ -128,6 +128,59 @@ def _with_repeat(Xb, y, setting):
 # ---------------------------------------------------------------------------
 # features
 # ---------------------------------------------------------------------------
+
+
+def test_pool_sweep_averages_blocks_of_each_run():
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=(2, 10, 3))
+    lengths = np.array([10, 7])
+    values[1, 7:] = 99.0  # padding must not leak into the last block
+    pooled, n_steps = pool_sweep(values, lengths, 4)
+    assert_array_equal(n_steps, [3, 2])
+    assert pooled.shape == (2, 3, 3)
+    assert_allclose(pooled[0, 0], values[0, 0:4].mean(axis=0))
+    assert_allclose(pooled[0, 2], values[0, 8:10].mean(axis=0))  # a partial block
+    assert_allclose(pooled[1, 1], values[1, 4:7].mean(axis=0))
+    assert_array_equal(pooled[1, 2], 0.0)  # after the run's last block
+    sub, n_sub = pool_sweep(values, lengths, 4, "subsample")
+    assert_array_equal(n_sub, n_steps)
+    assert_array_equal(sub[0], values[0, ::4])
+    assert_array_equal(sub[1, :2], values[1, [0, 4]])
+    assert_array_equal(sub[1, 2], 0.0)
+    assert_array_equal(values[1, 7:], 99.0)  # input untouched
+    same, n_same = pool_sweep(values, lengths, 1)
+    assert_array_equal(n_same, lengths)
+    assert_allclose(same[0], values[0])
+
+
+def test_pool_sweep_mean_averages_out_noise():
+    rng = np.random.default_rng(1)
+    slow = np.linspace(0.0, 50.0, 4000)[None, :, None]
+    noisy = slow + rng.normal(scale=3.0, size=slow.shape)
+    lengths = np.array([4000])
+    mean, _ = pool_sweep(noisy, lengths, 40)
+    sub, _ = pool_sweep(noisy, lengths, 40, "subsample")
+    truth, _ = pool_sweep(slow, lengths, 40)
+    err_mean = np.std(mean - truth)
+    err_sub = np.std(sub - pool_sweep(slow, lengths, 40, "subsample")[0])
+    assert err_mean < 0.25 * err_sub  # noise sd shrinks by about sqrt(40)
+
+
+def test_pool_sweep_rejects_unknown_pooling():
+    with pytest.raises(ValueError, match="pooling"):
+        pool_sweep(np.zeros((1, 4, 2)), np.array([4]), 2, "median")
+
+
+def test_sweep_pooling_changes_the_context(small):
+    _, Xb, y = small
+    mean = tiny_residual(GRUResidual, max_epochs=1).fit(Xb, y)
+    sub = tiny_residual(GRUResidual, max_epochs=1, sweep_pooling="subsample").fit(Xb, y)
+    assert not np.allclose(mean.predict(Xb), sub.predict(Xb))
+    # a learner pickled before the parameter existed keeps subsampling
+    old = pickle.loads(pickle.dumps(sub))
+    del old.sweep_pooling
+    assert_allclose(old.predict(Xb), sub.predict(Xb))
+
 def test_feature_names():
     assert step_feature_names() == (
         "q1", "q2", "dq1", "dq2", "tau1", "tau2", "b_x", "b_y", "b_z"
@@ -556,6 +609,7 @@ def test_default_parameters():
             200, 25.0, 1e-2, True, True
         )
         assert (p["lr_schedule"], p["optimizer__weight_decay"]) == ("cosine", 1e-4)
+        assert (p["sweep_stride"], p["sweep_pooling"]) == (40, "mean")
     assert clone(mlp).get_params()["burn_in"] == 0
 
 
@@ -722,6 +776,7 @@ def test_fit_needs_y(Est, small):
         (dict(validation_fraction=0.0), "validation_fraction"),
         (dict(clip=0.0), "clip"),
         (dict(sweep_stride=0), "sweep_stride"),
+        (dict(sweep_pooling="max"), "sweep_pooling"),
         (dict(n_threads=0), "n_threads"),
         (dict(lr=-1.0), "lr"),
     ],
@@ -797,6 +852,11 @@ def test_pretrained_errors(Est, small, fitted):
         tiny_residual(Est, pretrained=fitted(other)[0]).fit(Xb, y)
     with pytest.raises(ValueError, match="frame"):
         tiny_residual(Est, frame="base", pretrained=FrozenEstimator(source)).fit(Xb, y)
+    # the encoder learned sweeps shortened in one way
+    with pytest.raises(ValueError, match="sweep_stride=50"):
+        tiny_residual(Est, sweep_stride=25, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    with pytest.raises(ValueError, match="sweep_pooling='mean'"):
+        tiny_residual(Est, sweep_pooling="subsample", pretrained=FrozenEstimator(source)).fit(Xb, y)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)

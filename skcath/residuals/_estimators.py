@@ -37,6 +37,7 @@ from ._features import (
     Standardizer,
     cut_windows,
     feature_frame,
+    pool_sweep,
     step_feature_names,
     sweep_feature_names,
 )
@@ -121,6 +122,11 @@ class _SettingHoldout:
         return train, valid
 
 
+def _sweep_pooling(learner):
+    """``sweep_pooling`` of a learner; those pickled before the parameter existed subsampled."""
+    return getattr(learner, "sweep_pooling", "subsample")
+
+
 class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
     """Shared machinery of the residual learners (not for direct use)."""
 
@@ -131,6 +137,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         "window_step": [Interval(Integral, 1, None, closed="left"), None],
         "burn_in": [Interval(Integral, 0, None, closed="left")],
         "sweep_stride": [Interval(Integral, 1, None, closed="left")],
+        "sweep_pooling": [StrOptions({"mean", "subsample"})],
         "use_torque": ["boolean"],
         "use_context": ["boolean"],
         "frame": [StrOptions(set(FRAMES))],
@@ -158,7 +165,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         window=200,
         window_step=None,
         burn_in=50,
-        sweep_stride=20,
+        sweep_stride=40,
+        sweep_pooling="mean",
         use_torque=True,
         use_context=True,
         frame="sweep",
@@ -190,6 +198,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.window_step = window_step
         self.burn_in = burn_in
         self.sweep_stride = sweep_stride
+        self.sweep_pooling = sweep_pooling
         self.use_torque = use_torque
         self.use_context = use_context
         self.frame = frame
@@ -304,10 +313,14 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 "cross_validate or GridSearchCV wrap it in sklearn.frozen.FrozenEstimator, "
                 "because clone() drops the weights of a plain fitted estimator."
             )
-        for key in ("use_torque", "use_context", "frame"):
-            if getattr(source, key) != getattr(self, key):
+        keys = ["use_torque", "use_context", "frame"]
+        if self.use_context:  # the encoder learned sweeps shortened this way
+            keys += ["sweep_stride", "sweep_pooling"]
+        for key in keys:
+            theirs = _sweep_pooling(source) if key == "sweep_pooling" else getattr(source, key)
+            if theirs != getattr(self, key):
                 raise ValueError(
-                    f"pretrained was fitted with {key}={getattr(source, key)!r} but this "
+                    f"pretrained was fitted with {key}={theirs!r} but this "
                     f"estimator has {key}={getattr(self, key)!r}; they must match."
                 )
         return source
@@ -371,10 +384,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
 
     def _context_input(self, sweep, dtype=np.float32):
-        """Normalised sweep subsampled at ``sweep_stride``, and its valid lengths."""
-        stride = self.sweep_stride
-        values = self.s_scaler_.transform(sweep.values[:, ::stride]).astype(dtype)
-        lengths = -(-sweep.lengths // stride)  # ceil division
+        """Normalised sweep pooled over blocks of ``sweep_stride``, and its valid lengths."""
+        pooling = _sweep_pooling(self)
+        pooled, lengths = pool_sweep(sweep.values, sweep.lengths, self.sweep_stride, pooling)
+        values = self.s_scaler_.transform(pooled).astype(dtype)
         valid = np.arange(values.shape[1])[None, :] < lengths[:, None]
         values[~valid] = 0.0
         return values, np.maximum(lengths, 1).astype(np.int64)
@@ -586,8 +599,13 @@ _COMMON_PARAMS = """
         Leading steps of a window that starts inside a run, excluded from the
         loss: they warm the hidden state up from zero. Windows that start at
         the beginning of a motion sequence count from step 0, as in prediction.
-    sweep_stride : int, default=20
-        Subsampling stride of the sweep sequence fed to the context encoder.
+    sweep_stride : int, default=40
+        Samples of the sweep per step of the context encoder (4 s at 10 Hz):
+        the sweep sequence is shortened by this factor before encoding.
+    sweep_pooling : {"mean", "subsample"}, default="mean"
+        How ``sweep_stride`` samples become one encoder step: their mean,
+        which averages out the measurement noise of the drive torques, or
+        the first of them (the earlier behaviour, kept for comparison).
     use_torque : bool, default=True
         Include the drive torques in the step features and the sweep features.
     use_context : bool, default=True
@@ -649,9 +667,9 @@ _COMMON_ATTRIBUTES = """
 class GRUResidual(_ResidualNet):
     __doc__ = f"""Sweep-context GRU residual learner (the paper's estimator).
 
-    For every run, the normalised sweep features ``s = [q, tau]``, subsampled
-    at ``sweep_stride``, are encoded once into a context ``z``. Along the
-    motion sequence, the per-step features
+    For every run, the normalised sweep features ``s = [q, tau]``, averaged
+    over blocks of ``sweep_stride`` samples, are encoded once into a context
+    ``z``. Along the motion sequence, the per-step features
 
     .. math::
 

@@ -1,7 +1,7 @@
 """Input features of the residual learners (paper eqs. "features" and "context").
 
 Pure numpy functions: per-step motion features ``x = [q, dq, tau, b]``, sweep
-features ``s = [q, tau]`` subsampled at a fixed stride, featurewise
+features ``s = [q, tau]`` pooled over blocks of a fixed length, featurewise
 normalisation statistics, and the training windows cut from the motion
 sequences. Nothing here depends on torch.
 """
@@ -22,6 +22,7 @@ __all__ = [
     "Standardizer",
     "cut_windows",
     "motor_deltas",
+    "pool_sweep",
     "step_feature_names",
     "sweep_feature_names",
 ]
@@ -106,6 +107,54 @@ class Standardizer:
     def transform(self, values: np.ndarray) -> np.ndarray:
         """Normalised copy of ``values`` (any leading shape, last axis features)."""
         return (values - self.mean.astype(values.dtype)) / self.scale.astype(values.dtype)
+
+
+def pool_sweep(values: np.ndarray, lengths: np.ndarray, stride: int, pooling: str = "mean"):
+    """Shorten padded sweep sequences by ``stride`` for the context encoder.
+
+    ``pooling="mean"`` averages every block of ``stride`` consecutive samples
+    (the last block of a run averages the samples it has), which keeps the
+    slow shape of the sweep and divides the variance of white measurement
+    noise (torque quantisation and sensor noise) by ``stride``;
+    ``pooling="subsample"`` keeps the first sample of every block.
+
+    Parameters
+    ----------
+    values : ndarray of shape (n_runs, L, n_features)
+        Sweep features, padded after each run's length.
+    lengths : ndarray of int, shape (n_runs,)
+        Valid samples of every run.
+    stride : int
+        Block length (samples), at least 1.
+    pooling : {"mean", "subsample"}, default="mean"
+        How a block becomes one step.
+
+    Returns
+    -------
+    pooled : ndarray of shape (n_runs, ceil(L / stride), n_features)
+        One step per block, zero after each run's last block.
+    n_steps : ndarray of int, shape (n_runs,)
+        ``ceil(lengths / stride)``, the valid steps of every run.
+    """
+    values = np.asarray(values)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    n_runs, length, n_features = values.shape
+    n_blocks = -(-length // stride)
+    n_steps = -(-lengths // stride)
+    if pooling == "subsample":
+        pooled = values[:, ::stride].copy()
+    elif pooling == "mean":
+        padded = np.zeros((n_runs, n_blocks * stride, n_features), dtype=np.float64)
+        padded[:, :length] = values
+        valid = np.arange(n_blocks * stride)[None, :] < lengths[:, None]
+        padded[~valid] = 0.0
+        total = padded.reshape(n_runs, n_blocks, stride, n_features).sum(axis=2)
+        count = valid.reshape(n_runs, n_blocks, stride).sum(axis=2)
+        pooled = (total / np.maximum(count, 1)[..., None]).astype(values.dtype, copy=False)
+    else:
+        raise ValueError(f"pooling must be 'mean' or 'subsample'; got {pooling!r}.")
+    pooled[np.arange(n_blocks)[None, :] >= n_steps[:, None]] = 0.0
+    return pooled, n_steps
 
 
 def cut_windows(lengths: np.ndarray, window: int | None, step: int | None = None):
