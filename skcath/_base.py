@@ -5,15 +5,11 @@ import warnings
 import numpy as np
 
 from ._validation import check_target
+from ._version import current_version
+from .exceptions import InconsistentVersionWarning
+from .metrics import mean_per_run_rmse
 
 __all__ = ["RecordingsMixin"]
-
-
-def _current_version():
-    """The running skcath version (imported late: the package imports this module)."""
-    from . import __version__
-
-    return __version__
 
 
 class RecordingsMixin:
@@ -25,7 +21,7 @@ class RecordingsMixin:
 
     Pickling stores the skcath version in the state (``_skcath_version``);
     unpickling under another version warns with
-    :class:`skcath.persist.InconsistentVersionWarning`.
+    :class:`skcath.exceptions.InconsistentVersionWarning`.
     """
 
     _target_required = False
@@ -51,8 +47,6 @@ class RecordingsMixin:
         -------
         score : float
         """
-        from .metrics import mean_per_run_rmse
-
         if sample_weight is not None:
             raise ValueError("sample_weight is not supported: the metric weights runs equally.")
         y = check_target(y, len(X))
@@ -64,20 +58,18 @@ class RecordingsMixin:
         state = super().__getstate__()
         if state is None or not isinstance(state, dict):  # pragma: no cover - no __dict__
             return state
-        return {**state, "_skcath_version": _current_version()}
+        return {**state, "_skcath_version": current_version()}
 
     def __setstate__(self, state):
         if isinstance(state, dict) and "_skcath_version" in state:
             state = dict(state)
             saved = state.pop("_skcath_version")
-            if saved != _current_version():
-                from .persist import InconsistentVersionWarning
-
+            if saved != current_version():
                 warnings.warn(
                     InconsistentVersionWarning(
                         estimator_name=type(self).__name__,
                         original_version=saved,
-                        current_version=_current_version(),
+                        current_version=current_version(),
                     ),
                     stacklevel=2,
                 )

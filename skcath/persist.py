@@ -15,8 +15,8 @@ an obscure unpickling error.
 
 Estimators pickled directly (``pickle.dump``, ``joblib.dump``) carry the skcath
 version too: :class:`~skcath._base.RecordingsMixin` stores it in the pickled
-state and warns with :class:`InconsistentVersionWarning` when it differs from
-the running version on unpickling.
+state and warns with :class:`~skcath.exceptions.InconsistentVersionWarning`
+when it differs from the running version on unpickling.
 """
 
 from __future__ import annotations
@@ -30,7 +30,12 @@ import warnings
 import zipfile
 from importlib import metadata
 
-from ._base import _current_version
+import joblib
+
+from ._version import current_version
+
+# the version warning and error, public here too (their home is skcath.exceptions)
+from .exceptions import IncompatibleVersionError, InconsistentVersionWarning
 
 __all__ = [
     "FORMATS",
@@ -50,40 +55,6 @@ _HEADER = "skcath.json"
 _PAYLOAD = {"joblib": "estimator.joblib", "skops": "estimator.skops"}
 _FILE_FORMAT = 1
 _RECORDED = ("scikit-learn", "torch", "skorch", "numpy", "joblib", "skops")
-
-
-class InconsistentVersionWarning(UserWarning):
-    """An estimator is unpickled under another skcath version than it was pickled with.
-
-    Parameters
-    ----------
-    estimator_name : str
-        Class name of the unpickled estimator.
-    original_version : str
-        skcath version that pickled it.
-    current_version : str
-        skcath version that unpickles it.
-    """
-
-    def __init__(self, *, estimator_name, original_version, current_version):
-        self.estimator_name = estimator_name
-        self.original_version = original_version
-        self.current_version = current_version
-
-    def __str__(self):
-        return (
-            f"{self.estimator_name} was pickled with skcath {self.original_version} and is "
-            f"unpickled with skcath {self.current_version}; its predictions may differ or it may "
-            "fail. Refit it with the running version, or install skcath "
-            f"{self.original_version} to use it."
-        )
-
-
-class IncompatibleVersionError(ValueError):
-    """A saved estimator was written by an incompatible skcath version.
-
-    Raised by :func:`load`; ``allow_version_mismatch=True`` loads the file anyway.
-    """
 
 
 def _release(version: str) -> tuple[int, int]:
@@ -115,7 +86,7 @@ def is_compatible_version(saved: str, running: str | None = None) -> bool:
     -------
     compatible : bool
     """
-    running = _current_version() if running is None else running
+    running = current_version() if running is None else running
     a, b = _release(saved), _release(running)
     if a[0] != b[0]:
         return False
@@ -123,7 +94,7 @@ def is_compatible_version(saved: str, running: str | None = None) -> bool:
 
 
 def _versions() -> dict:
-    out = {"skcath": _current_version(), "python": platform.python_version()}
+    out = {"skcath": current_version(), "python": platform.python_version()}
     for name in _RECORDED:
         try:
             out[name] = metadata.version(name)
@@ -166,8 +137,6 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
     if not (isinstance(compress, int) and 0 <= compress <= 9):
         raise ValueError(f"compress: expected an int in [0, 9], got {compress!r}")
     if format == "joblib":
-        import joblib
-
         buffer = io.BytesIO()
         joblib.dump(estimator, buffer)
         payload = buffer.getvalue()
@@ -275,7 +244,7 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
         arbitrary code from the file: load only joblib files you trust.
     allow_version_mismatch : bool, default=False
         Load a file written by an incompatible skcath version anyway (with an
-        :class:`InconsistentVersionWarning`) instead of raising.
+        :class:`~skcath.exceptions.InconsistentVersionWarning`) instead of raising.
 
     Returns
     -------
@@ -297,7 +266,7 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
     with zf:
         fmt = header["format"]
         saved = header["versions"]["skcath"]
-        running = _current_version()
+        running = current_version()
         name = header["estimator"].rsplit(".", 1)[-1]
         if not is_compatible_version(saved, running) and not allow_version_mismatch:
             raise IncompatibleVersionError(
@@ -316,8 +285,6 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
         # one warning from here instead of one per unpickled skcath estimator
         warnings.simplefilter("ignore", InconsistentVersionWarning)
         if fmt == "joblib":
-            import joblib
-
             estimator = joblib.load(io.BytesIO(payload))
         else:
             import skops.io as sio

@@ -14,6 +14,7 @@ from sklearn.base import clone
 from sklearn.pipeline import Pipeline
 
 import skcath
+import skcath._version
 from skcath import persist
 from skcath.backbones import PCCBackbone, PDLBackbone
 from skcath.datasets import make_benchmark
@@ -113,7 +114,7 @@ def test_compatible_other_version_loads_with_warning(data, fitted, tmp_path, mon
     pipe = fitted("PCC", "none")
     path = tmp_path / "pipe.skcath"
     persist.save(pipe, path)
-    monkeypatch.setattr(skcath, "__version__", "0.1.5")
+    monkeypatch.setattr(skcath._version, "__version__", "0.1.5")
     with pytest.warns(InconsistentVersionWarning, match="0.1.5") as record:
         loaded = persist.load(path)
     assert len(record) == 1
@@ -155,7 +156,7 @@ def test_plain_pickle_warns_on_other_version(data, fitted, monkeypatch, residual
     assert not hasattr(same["residual"], "_skcath_version")
     assert not hasattr(same["backbone"], "_skcath_version")
 
-    monkeypatch.setattr(skcath, "__version__", "7.0.0")
+    monkeypatch.setattr(skcath._version, "__version__", "7.0.0")
     with pytest.warns(InconsistentVersionWarning) as record:
         other = pickle.loads(payload)
     names = sorted(w.message.estimator_name for w in record)
@@ -171,7 +172,7 @@ def test_joblib_dump_carries_version(data, fitted, tmp_path, monkeypatch):
     model = fitted("PDL", "MLP")["residual"]
     path = tmp_path / "residual.joblib"
     joblib.dump(model, path)
-    monkeypatch.setattr(skcath, "__version__", "0.0.1")
+    monkeypatch.setattr(skcath._version, "__version__", "0.0.1")
     with pytest.warns(InconsistentVersionWarning, match="MLPResidual was pickled with skcath"):
         loaded = joblib.load(path)
     Xb = fitted("PDL", "MLP")["backbone"].transform(X)
