@@ -31,6 +31,7 @@ import zipfile
 from importlib import metadata
 
 import joblib
+from sklearn.utils._param_validation import validate_params
 
 from ._version import current_version
 
@@ -55,6 +56,7 @@ _HEADER = "skcath.json"
 _PAYLOAD = {"joblib": "estimator.joblib", "skops": "estimator.skops"}
 _FILE_FORMAT = 1
 _RECORDED = ("scikit-learn", "torch", "skorch", "numpy", "joblib", "skops")
+_PATH = [str, os.PathLike]
 
 
 def _release(version: str) -> tuple[int, int]:
@@ -65,6 +67,7 @@ def _release(version: str) -> tuple[int, int]:
     return int(match[1]), int(match[2] or 0)
 
 
+@validate_params({"saved": [str], "running": [str, None]}, prefer_skip_nested_validation=True)
 def is_compatible_version(saved: str, running: str | None = None) -> bool:
     """Whether an estimator saved by skcath ``saved`` may be loaded by ``running``.
 
@@ -103,6 +106,16 @@ def _versions() -> dict:
     return out
 
 
+@validate_params(
+    {
+        "estimator": "no_validation",  # any object joblib can pickle
+        "path": _PATH,
+        # format and compress are checked in the body, with messages that list the choices
+        "format": "no_validation",
+        "compress": "no_validation",
+    },
+    prefer_skip_nested_validation=True,
+)
 def save(estimator, path, *, format="joblib", compress=3) -> None:
     """Save a (fitted) estimator with the versions of skcath and its dependencies.
 
@@ -184,6 +197,7 @@ def _open(path):
     return zf, header
 
 
+@validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
 def read_versions(path) -> dict:
     """The header of a saved file, without loading the estimator.
 
@@ -203,6 +217,7 @@ def read_versions(path) -> dict:
     return header
 
 
+@validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
 def get_untrusted_types(path) -> list[str]:
     """Types in a skops-format file that skops does not trust by default.
 
@@ -230,6 +245,14 @@ def get_untrusted_types(path) -> list[str]:
         return sio.get_untrusted_types(data=zf.read(_PAYLOAD["skops"]))
 
 
+@validate_params(
+    {
+        "path": _PATH,
+        "trusted": [list, tuple, None],
+        "allow_version_mismatch": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def load(path, *, trusted=None, allow_version_mismatch=False):
     """Load an estimator saved by :func:`save`, after checking the skcath version.
 

@@ -12,6 +12,7 @@ import pytest
 from numpy.testing import assert_array_equal
 from sklearn.base import clone
 from sklearn.pipeline import Pipeline
+from sklearn.utils._param_validation import InvalidParameterError
 
 import skcath
 import skcath._version
@@ -243,3 +244,20 @@ def test_bad_arguments_and_files(fitted, tmp_path):
         zf.writestr("a.txt", "a")
     with pytest.raises(ValueError, match="has no skcath.json"):
         persist.load(tmp_path / "other.zip")
+
+
+def test_arguments_of_the_wrong_type_are_named(fitted, tmp_path):
+    pipe = fitted("PCC", "none")
+    with pytest.raises(InvalidParameterError, match="'path' parameter of save"):
+        persist.save(pipe, 123)
+    path = tmp_path / "pipe.skcath"
+    persist.save(pipe, str(path))
+    with pytest.raises(InvalidParameterError, match="'allow_version_mismatch' parameter of load"):
+        persist.load(path, allow_version_mismatch="yes")
+    with pytest.raises(InvalidParameterError, match="'trusted' parameter of load"):
+        persist.load(path, trusted="numpy.ndarray")
+    for function in (persist.read_versions, persist.get_untrusted_types):
+        with pytest.raises(InvalidParameterError, match=f"'path' parameter of {function.__name__}"):
+            function(None)
+    with pytest.raises(InvalidParameterError, match="'saved' parameter of is_compatible_version"):
+        is_compatible_version(0.1)
