@@ -516,9 +516,11 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
     def partial_fit(self, X, y, classes=None, **fit_params):
         """Train for ``max_epochs`` more epochs without re-initialising the network.
 
-        The first call starts the network as :meth:`fit` does. Normalisation
-        statistics are computed on the first call (or taken from
-        ``pretrained``) and kept afterwards. Parameters as in :meth:`fit`.
+        The first call starts the network as :meth:`fit` does and validates
+        the parameters; later calls check only the data, as scikit-learn's
+        ``partial_fit`` methods do. Normalisation statistics are computed on
+        the first call (or taken from ``pretrained``) and kept afterwards.
+        Parameters as in :meth:`fit`.
         """
         X, y = self._check_training_data(X, y, "partial_fit")
         if not self.initialized_:
