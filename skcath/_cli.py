@@ -35,10 +35,6 @@ import numpy as np
 import pandas as pd
 
 from . import datasets, protocol
-from ._version import __version__
-from .frames import FRAMES
-from .io import read_recording
-from .protocol import VARIANTS
 from ._format import (
     CATHETER,
     MOTION,
@@ -49,6 +45,10 @@ from ._format import (
     SWEEP,
     TORQUE_COLUMNS,
 )
+from ._version import __version__
+from .frames import FRAMES
+from .io import read_recording
+from .protocol import VARIANTS
 
 __all__ = ["build_parser", "main", "summarize_benchmark", "format_table"]
 
