@@ -15,8 +15,7 @@ from ._format import (
 )
 
 from ._validation import check_recordings
-
-__version__ = "0.1.0.dev0"
+from ._version import __version__
 
 __all__ = [
     "ID_COLUMNS",

@@ -1,39 +1,62 @@
-"""What every estimator over recordings shares: the run-RMSE score and the input tags."""
+"""What every estimator over recordings shares: checks, fit, the run-RMSE score and the tags."""
 
 import warnings
 
 import numpy as np
+from sklearn.base import _fit_context
 
-from ._validation import check_target
+from ._validation import check_recordings, check_target
+from ._version import current_version
+from .exceptions import InconsistentVersionWarning
+from .metrics import mean_per_run_rmse
 
 __all__ = ["RecordingsMixin"]
-
-
-def _current_version():
-    """The running skcath version (imported late: the package imports this module)."""
-    from . import __version__
-
-    return __version__
 
 
 class RecordingsMixin:
     """Mixin of the estimators that take long-format recordings and predict tips.
 
-    ``score`` is the negated mean per-run RMSE over motion rows, and the tags
-    declare long-format input (strings, categories and NaN allowed) and a
-    3-column target. Subclasses set ``_target_required``.
+    ``fit`` validates the recordings and records their columns (estimators
+    that learn across runs override it), ``score`` is the negated mean per-run
+    RMSE over motion rows, and the tags declare long-format input (strings,
+    categories and NaN allowed) and a 3-column target. Subclasses set
+    ``_target_required`` and extend ``_check_X`` with the columns they need.
 
     Pickling stores the skcath version in the state (``_skcath_version``);
     unpickling under another version warns with
-    :class:`skcath.persist.InconsistentVersionWarning`.
+    :class:`skcath.exceptions.InconsistentVersionWarning`.
     """
 
     _target_required = False
+
+    def _check_X(self, X, y=None):
+        """The checked recordings ``X`` (and tip positions ``y``, if given) of a call."""
+        return check_recordings(X, y)
 
     def _record_columns(self, X):
         """Remember the columns of the recordings seen in ``fit``."""
         self.feature_names_in_ = np.asarray(X.columns, dtype=object)
         self.n_features_in_ = X.shape[1]
+
+    @_fit_context(prefer_skip_nested_validation=True)
+    def fit(self, X, y=None):
+        """Validate the recordings and remember their columns; nothing is learned across runs.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format (``docs/data_format.rst``) with the
+            columns the estimator reads.
+        y : array-like of shape (n_samples, 3), optional
+            Tip positions (mm); validated if given, otherwise unused.
+
+        Returns
+        -------
+        self : object
+        """
+        X, _ = self._check_X(X, y)
+        self._record_columns(X)
+        return self
 
     def score(self, X, y, sample_weight=None):
         """Negated mean per-run RMSE (mm) over motion rows (greater is better).
@@ -51,8 +74,6 @@ class RecordingsMixin:
         -------
         score : float
         """
-        from .metrics import mean_per_run_rmse
-
         if sample_weight is not None:
             raise ValueError("sample_weight is not supported: the metric weights runs equally.")
         y = check_target(y, len(X))
@@ -64,20 +85,18 @@ class RecordingsMixin:
         state = super().__getstate__()
         if state is None or not isinstance(state, dict):  # pragma: no cover - no __dict__
             return state
-        return {**state, "_skcath_version": _current_version()}
+        return {**state, "_skcath_version": current_version()}
 
     def __setstate__(self, state):
         if isinstance(state, dict) and "_skcath_version" in state:
             state = dict(state)
             saved = state.pop("_skcath_version")
-            if saved != _current_version():
-                from .persist import InconsistentVersionWarning
-
+            if saved != current_version():
                 warnings.warn(
                     InconsistentVersionWarning(
                         estimator_name=type(self).__name__,
                         original_version=saved,
-                        current_version=_current_version(),
+                        current_version=current_version(),
                     ),
                     stacklevel=2,
                 )

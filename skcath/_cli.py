@@ -23,17 +23,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import logging
 import sys
 import time
 import warnings
 from collections.abc import Sequence
 
+import joblib
 import numpy as np
 import pandas as pd
 
-from . import __version__
-from .frames import FRAMES
+from . import datasets, protocol
 from ._format import (
     CATHETER,
     MOTION,
@@ -44,6 +45,10 @@ from ._format import (
     SWEEP,
     TORQUE_COLUMNS,
 )
+from ._version import __version__
+from .frames import FRAMES
+from .io import read_recording
+from .protocol import VARIANTS
 
 __all__ = ["build_parser", "main", "summarize_benchmark", "format_table"]
 
@@ -87,8 +92,6 @@ def _seed(text: str) -> int:
 
 
 def _variant_names():
-    from .protocol import VARIANTS
-
     return list(VARIANTS)
 
 
@@ -483,8 +486,6 @@ def _cache_state(folder) -> dict:
 
 
 def _run_benchmark(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    from . import datasets
-
     if args.verbose:
         logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
 
@@ -545,14 +546,10 @@ def _excluded_settings(args, parser, figures_need):
 def _load_reproduce_data(args, parser):
     """Recordings and targets for ``reproduce``: a file, or the built-in benchmark."""
     if args.data is not None:
-        from .io import read_recording
-
         try:
             return read_recording(args.data)
         except (OSError, ValueError, ImportError) as exc:
             parser.error(f"argument --data: {exc}")
-    from . import datasets
-
     try:
         bunch = datasets.make_benchmark(mechanism=args.mechanism, data_home=args.data_home)
     except (OSError, ValueError) as exc:
@@ -576,7 +573,6 @@ def _joblib_backend(args, parser):
     if args.backend != "dask":
         yield
         return
-    import joblib
     from distributed import Client, LocalCluster
 
     with contextlib.ExitStack() as stack:
@@ -602,7 +598,6 @@ def _joblib_backend(args, parser):
 @contextlib.contextmanager
 def _ray_backend(args, parser):
     """Connect to the Ray cluster at ``--scheduler``, or start a local one of ``--n-jobs`` CPUs."""
-    import joblib
     import ray
     from ray.util.joblib import register_ray
 
@@ -625,10 +620,6 @@ def _ray_backend(args, parser):
 
 
 def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    import dataclasses
-
-    from . import protocol
-
     if args.n_jobs == 0:
         parser.error("argument --n-jobs: expected a positive number of jobs or -1 (all cores), got 0")
     schedule = protocol.QUICK if args.quick else protocol.FULL
@@ -673,10 +664,6 @@ def _run_reproduce(args: argparse.Namespace, parser: argparse.ArgumentParser) ->
 
 
 def _run_calibration_budget(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    import dataclasses
-
-    from . import protocol
-
     if args.n_jobs == 0:
         parser.error("argument --n-jobs: expected a positive number of jobs or -1 (all cores), got 0")
     schedule = protocol.QUICK if args.schedule == "quick" else protocol.FULL

@@ -12,16 +12,16 @@ errors within ``k`` standard deviations, to be compared with the Gaussian
 from __future__ import annotations
 
 import copy
-from numbers import Integral
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.special import erf
 from scipy.stats import chi2
-from sklearn.base import BaseEstimator, MetaEstimatorMixin, RegressorMixin, clone
+from sklearn.base import BaseEstimator, MetaEstimatorMixin, RegressorMixin, _fit_context, clone
 from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
 from sklearn.utils import check_random_state, get_tags
-from sklearn.utils._param_validation import HasMethods, Interval
+from sklearn.utils._param_validation import HasMethods, Interval, StrOptions, validate_params
 from sklearn.utils.parallel import Parallel, delayed
 from sklearn.utils.validation import check_is_fitted
 
@@ -198,6 +198,7 @@ class SeedEnsembleRegressor(MetaEstimatorMixin, RegressorMixin, BaseEstimator):
         top = np.iinfo(np.int32).max
         return [{name: int(rng.randint(top)) for name in names} for _ in range(self.n_estimators)]
 
+    @_fit_context(prefer_skip_nested_validation=False)  # the members validate their own
     def fit(self, X, y, **fit_params):
         """Fit ``n_estimators`` clones of ``estimator``, each with its own seeds.
 
@@ -216,7 +217,6 @@ class SeedEnsembleRegressor(MetaEstimatorMixin, RegressorMixin, BaseEstimator):
         self : object
             The fitted ensemble.
         """
-        self._validate_params()
         seeds = self._member_seeds()
         members = [clone(self.estimator).set_params(**seed) for seed in seeds]
         self.estimators_ = Parallel(n_jobs=self.n_jobs)(
@@ -300,27 +300,25 @@ class SeedEnsembleRegressor(MetaEstimatorMixin, RegressorMixin, BaseEstimator):
             return RecordingsMixin.score(self, X, y, sample_weight=sample_weight)
         return super().score(X, y, sample_weight=sample_weight)
 
-    @property
-    def n_features_in_(self):
-        """Number of features seen in ``fit`` (from the first member)."""
+    def _from_first_member(self, name):
+        """Attribute ``name`` of the first fitted member; AttributeError before ``fit``."""
         try:
             check_is_fitted(self)
         except NotFittedError as exc:
             raise AttributeError(
-                f"{type(self).__name__} object has no n_features_in_ attribute before fit."
+                f"{type(self).__name__} object has no {name} attribute before fit."
             ) from exc
-        return self.estimators_[0].n_features_in_
+        return getattr(self.estimators_[0], name)
+
+    @property
+    def n_features_in_(self):
+        """Number of features seen in ``fit`` (from the first member)."""
+        return self._from_first_member("n_features_in_")
 
     @property
     def feature_names_in_(self):
         """Names of the features seen in ``fit`` (from the first member)."""
-        try:
-            check_is_fitted(self)
-        except NotFittedError as exc:
-            raise AttributeError(
-                f"{type(self).__name__} object has no feature_names_in_ attribute before fit."
-            ) from exc
-        return self.estimators_[0].feature_names_in_
+        return self._from_first_member("feature_names_in_")
 
     def __sklearn_is_fitted__(self):
         return hasattr(self, "estimators_")
@@ -355,6 +353,18 @@ def _check_k(k):
     return values, scalar
 
 
+@validate_params(
+    {
+        "y_true": ["array-like"],
+        "y_mean": ["array-like"],
+        "y_std": ["array-like"],
+        "k": [Real, "array-like"],  # positive: checked with the values
+        "runs": ["array-like", None],
+        "joint": "no_validation",  # True or False: checked below
+        "multioutput": [StrOptions({"uniform_average", "raw_values"})],
+    },
+    prefer_skip_nested_validation=True,
+)
 def coverage(y_true, y_mean, y_std, *, k=(1.0, 2.0), runs=None, joint=False,
              multioutput="uniform_average"):
     """Fraction of errors within ``k`` predicted standard deviations.
@@ -421,10 +431,6 @@ def coverage(y_true, y_mean, y_std, *, k=(1.0, 2.0), runs=None, joint=False,
     >>> coverage(y_true, np.zeros((100_000, 3)), np.full((100_000, 3), 2.0)).round(3)
     array([0.682, 0.954])
     """
-    if multioutput not in ("uniform_average", "raw_values"):
-        raise ValueError(
-            f"multioutput must be 'uniform_average' or 'raw_values'; got {multioutput!r}."
-        )
     if not isinstance(joint, (bool, np.bool_)):
         raise TypeError(f"joint must be True or False; got {joint!r}.")
     if joint and multioutput != "uniform_average":

@@ -15,8 +15,8 @@ an obscure unpickling error.
 
 Estimators pickled directly (``pickle.dump``, ``joblib.dump``) carry the skcath
 version too: :class:`~skcath._base.RecordingsMixin` stores it in the pickled
-state and warns with :class:`InconsistentVersionWarning` when it differs from
-the running version on unpickling.
+state and warns with :class:`~skcath.exceptions.InconsistentVersionWarning`
+when it differs from the running version on unpickling.
 """
 
 from __future__ import annotations
@@ -30,7 +30,13 @@ import warnings
 import zipfile
 from importlib import metadata
 
-from ._base import _current_version
+import joblib
+from sklearn.utils._param_validation import validate_params
+
+from ._version import current_version
+
+# the version warning and error, public here too (their home is skcath.exceptions)
+from .exceptions import IncompatibleVersionError, InconsistentVersionWarning
 
 __all__ = [
     "FORMATS",
@@ -50,40 +56,7 @@ _HEADER = "skcath.json"
 _PAYLOAD = {"joblib": "estimator.joblib", "skops": "estimator.skops"}
 _FILE_FORMAT = 1
 _RECORDED = ("scikit-learn", "torch", "skorch", "numpy", "joblib", "skops")
-
-
-class InconsistentVersionWarning(UserWarning):
-    """An estimator is unpickled under another skcath version than it was pickled with.
-
-    Parameters
-    ----------
-    estimator_name : str
-        Class name of the unpickled estimator.
-    original_version : str
-        skcath version that pickled it.
-    current_version : str
-        skcath version that unpickles it.
-    """
-
-    def __init__(self, *, estimator_name, original_version, current_version):
-        self.estimator_name = estimator_name
-        self.original_version = original_version
-        self.current_version = current_version
-
-    def __str__(self):
-        return (
-            f"{self.estimator_name} was pickled with skcath {self.original_version} and is "
-            f"unpickled with skcath {self.current_version}; its predictions may differ or it may "
-            "fail. Refit it with the running version, or install skcath "
-            f"{self.original_version} to use it."
-        )
-
-
-class IncompatibleVersionError(ValueError):
-    """A saved estimator was written by an incompatible skcath version.
-
-    Raised by :func:`load`; ``allow_version_mismatch=True`` loads the file anyway.
-    """
+_PATH = [str, os.PathLike]
 
 
 def _release(version: str) -> tuple[int, int]:
@@ -94,6 +67,7 @@ def _release(version: str) -> tuple[int, int]:
     return int(match[1]), int(match[2] or 0)
 
 
+@validate_params({"saved": [str], "running": [str, None]}, prefer_skip_nested_validation=True)
 def is_compatible_version(saved: str, running: str | None = None) -> bool:
     """Whether an estimator saved by skcath ``saved`` may be loaded by ``running``.
 
@@ -115,7 +89,7 @@ def is_compatible_version(saved: str, running: str | None = None) -> bool:
     -------
     compatible : bool
     """
-    running = _current_version() if running is None else running
+    running = current_version() if running is None else running
     a, b = _release(saved), _release(running)
     if a[0] != b[0]:
         return False
@@ -123,7 +97,7 @@ def is_compatible_version(saved: str, running: str | None = None) -> bool:
 
 
 def _versions() -> dict:
-    out = {"skcath": _current_version(), "python": platform.python_version()}
+    out = {"skcath": current_version(), "python": platform.python_version()}
     for name in _RECORDED:
         try:
             out[name] = metadata.version(name)
@@ -132,6 +106,16 @@ def _versions() -> dict:
     return out
 
 
+@validate_params(
+    {
+        "estimator": "no_validation",  # any object joblib can pickle
+        "path": _PATH,
+        # format and compress are checked in the body, with messages that list the choices
+        "format": "no_validation",
+        "compress": "no_validation",
+    },
+    prefer_skip_nested_validation=True,
+)
 def save(estimator, path, *, format="joblib", compress=3) -> None:
     """Save a (fitted) estimator with the versions of skcath and its dependencies.
 
@@ -166,8 +150,6 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
     if not (isinstance(compress, int) and 0 <= compress <= 9):
         raise ValueError(f"compress: expected an int in [0, 9], got {compress!r}")
     if format == "joblib":
-        import joblib
-
         buffer = io.BytesIO()
         joblib.dump(estimator, buffer)
         payload = buffer.getvalue()
@@ -215,6 +197,7 @@ def _open(path):
     return zf, header
 
 
+@validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
 def read_versions(path) -> dict:
     """The header of a saved file, without loading the estimator.
 
@@ -234,6 +217,7 @@ def read_versions(path) -> dict:
     return header
 
 
+@validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
 def get_untrusted_types(path) -> list[str]:
     """Types in a skops-format file that skops does not trust by default.
 
@@ -261,6 +245,14 @@ def get_untrusted_types(path) -> list[str]:
         return sio.get_untrusted_types(data=zf.read(_PAYLOAD["skops"]))
 
 
+@validate_params(
+    {
+        "path": _PATH,
+        "trusted": [list, tuple, None],
+        "allow_version_mismatch": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def load(path, *, trusted=None, allow_version_mismatch=False):
     """Load an estimator saved by :func:`save`, after checking the skcath version.
 
@@ -275,7 +267,7 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
         arbitrary code from the file: load only joblib files you trust.
     allow_version_mismatch : bool, default=False
         Load a file written by an incompatible skcath version anyway (with an
-        :class:`InconsistentVersionWarning`) instead of raising.
+        :class:`~skcath.exceptions.InconsistentVersionWarning`) instead of raising.
 
     Returns
     -------
@@ -297,7 +289,7 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
     with zf:
         fmt = header["format"]
         saved = header["versions"]["skcath"]
-        running = _current_version()
+        running = current_version()
         name = header["estimator"].rsplit(".", 1)[-1]
         if not is_compatible_version(saved, running) and not allow_version_mismatch:
             raise IncompatibleVersionError(
@@ -316,8 +308,6 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
         # one warning from here instead of one per unpickled skcath estimator
         warnings.simplefilter("ignore", InconsistentVersionWarning)
         if fmt == "joblib":
-            import joblib
-
             estimator = joblib.load(io.BytesIO(payload))
         else:
             import skops.io as sio

@@ -47,6 +47,9 @@ from numbers import Integral
 import numpy as np
 import pandas as pd
 
+from . import _format as fmt
+from ._validation import check_recordings, check_target, run_codes, run_positions
+
 __all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
 
 _TWO_PI = 2.0 * np.pi
@@ -809,9 +812,6 @@ def reduce_sweep(X, y=None, *, n_rays=None, stride=1, n_rays_swept=8):
     >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
     >>> X4, y4 = reduce_sweep(data.X, data.y, n_rays=4, stride=2)  # doctest: +SKIP
     """
-    from . import _format as fmt
-    from ._validation import check_recordings, check_target, run_codes, run_positions
-
     if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 2:
         raise ValueError(f"n_rays_swept must be an integer of at least 2; got {n_rays_swept!r}.")
     n_rays_swept = int(n_rays_swept)

@@ -275,6 +275,22 @@ def test_coverage_rejects_bad_input(kwargs, error, match):
         coverage(**args)
 
 
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"y_true": 3.0}, "y_true"),
+        ({"y_std": "wide"}, "y_std"),
+        ({"k": "one"}, "k"),
+        ({"runs": "run-1"}, "runs"),
+    ],
+)
+def test_coverage_names_the_bad_argument(kwargs, name):
+    args = {"y_true": np.zeros((4, 3)), "y_mean": np.zeros((4, 3)), "y_std": np.ones((4, 3))}
+    args.update(kwargs)
+    with pytest.raises(InvalidParameterError, match=f"The '{name}' parameter of coverage"):
+        coverage(**args)
+
+
 # ---------------------------------------------------------------------------
 # end to end: GRU residual ensembles on simulated recordings
 # ---------------------------------------------------------------------------

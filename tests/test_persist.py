@@ -12,8 +12,10 @@ import pytest
 from numpy.testing import assert_array_equal
 from sklearn.base import clone
 from sklearn.pipeline import Pipeline
+from sklearn.utils._param_validation import InvalidParameterError
 
 import skcath
+import skcath._version
 from skcath import persist
 from skcath.backbones import PCCBackbone, PDLBackbone
 from skcath.datasets import make_benchmark
@@ -113,7 +115,7 @@ def test_compatible_other_version_loads_with_warning(data, fitted, tmp_path, mon
     pipe = fitted("PCC", "none")
     path = tmp_path / "pipe.skcath"
     persist.save(pipe, path)
-    monkeypatch.setattr(skcath, "__version__", "0.1.5")
+    monkeypatch.setattr(skcath._version, "__version__", "0.1.5")
     with pytest.warns(InconsistentVersionWarning, match="0.1.5") as record:
         loaded = persist.load(path)
     assert len(record) == 1
@@ -155,7 +157,7 @@ def test_plain_pickle_warns_on_other_version(data, fitted, monkeypatch, residual
     assert not hasattr(same["residual"], "_skcath_version")
     assert not hasattr(same["backbone"], "_skcath_version")
 
-    monkeypatch.setattr(skcath, "__version__", "7.0.0")
+    monkeypatch.setattr(skcath._version, "__version__", "7.0.0")
     with pytest.warns(InconsistentVersionWarning) as record:
         other = pickle.loads(payload)
     names = sorted(w.message.estimator_name for w in record)
@@ -171,7 +173,7 @@ def test_joblib_dump_carries_version(data, fitted, tmp_path, monkeypatch):
     model = fitted("PDL", "MLP")["residual"]
     path = tmp_path / "residual.joblib"
     joblib.dump(model, path)
-    monkeypatch.setattr(skcath, "__version__", "0.0.1")
+    monkeypatch.setattr(skcath._version, "__version__", "0.0.1")
     with pytest.warns(InconsistentVersionWarning, match="MLPResidual was pickled with skcath"):
         loaded = joblib.load(path)
     Xb = fitted("PDL", "MLP")["backbone"].transform(X)
@@ -242,3 +244,20 @@ def test_bad_arguments_and_files(fitted, tmp_path):
         zf.writestr("a.txt", "a")
     with pytest.raises(ValueError, match="has no skcath.json"):
         persist.load(tmp_path / "other.zip")
+
+
+def test_arguments_of_the_wrong_type_are_named(fitted, tmp_path):
+    pipe = fitted("PCC", "none")
+    with pytest.raises(InvalidParameterError, match="'path' parameter of save"):
+        persist.save(pipe, 123)
+    path = tmp_path / "pipe.skcath"
+    persist.save(pipe, str(path))
+    with pytest.raises(InvalidParameterError, match="'allow_version_mismatch' parameter of load"):
+        persist.load(path, allow_version_mismatch="yes")
+    with pytest.raises(InvalidParameterError, match="'trusted' parameter of load"):
+        persist.load(path, trusted="numpy.ndarray")
+    for function in (persist.read_versions, persist.get_untrusted_types):
+        with pytest.raises(InvalidParameterError, match=f"'path' parameter of {function.__name__}"):
+            function(None)
+    with pytest.raises(InvalidParameterError, match="'saved' parameter of is_compatible_version"):
+        is_compatible_version(0.1)

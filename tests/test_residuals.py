@@ -47,6 +47,7 @@ from skcath.residuals import (
     step_feature_names,
     sweep_feature_names,
 )
+from skcath.residuals import _estimators
 from skcath.residuals._features import cut_windows, feature_frame, motor_deltas, pool_sweep
 
 from _helpers import tiny_residual
@@ -788,6 +789,47 @@ def test_bad_parameters_raise_value_error(Est, params, name, small):
     with pytest.raises(ValueError, match=name):
         est.fit(Xb, y)
     assert not hasattr(est, "sigma_e_")
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_fit_validates_parameters_and_input_once(Est, small, monkeypatch):
+    _, Xb, y = small
+    calls = {"params": 0, "X": 0}
+
+    def count(key, function):
+        def wrapper(*args, **kwargs):
+            calls[key] += 1
+            return function(*args, **kwargs)
+
+        return wrapper
+
+    monkeypatch.setattr(_estimators, "validate_parameter_constraints",
+                        count("params", _estimators.validate_parameter_constraints))
+    monkeypatch.setattr(_estimators, "check_recordings",
+                        count("X", _estimators.check_recordings))
+    est = tiny_residual(Est, max_epochs=1)
+    est.fit(Xb, y)
+    assert calls == {"params": 1, "X": 1}
+    # a first partial_fit starts as fit does, validating once as well
+    calls.update(params=0, X=0)
+    tiny_residual(Est, max_epochs=1).partial_fit(Xb, y)
+    assert calls == {"params": 1, "X": 1}
+    # later calls of partial_fit check the data only (as scikit-learn's estimators do)
+    calls.update(params=0, X=0)
+    est.partial_fit(Xb, y)
+    assert calls == {"params": 0, "X": 1}
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_misspelled_skorch_arguments_are_still_refused(Est, small):
+    _, Xb, y = small
+    est = tiny_residual(Est, iterator_train_shuffle=False)
+    with pytest.raises(ValueError, match="did you mean iterator_train__shuffle"):
+        est.fit(Xb, y)
+    # and set_params of an initialised net checks the names as skorch does
+    est = tiny_residual(Est, max_epochs=1).fit(Xb, y)
+    with pytest.raises(ValueError, match="did you mean optimizer__weight_decay"):
+        est.set_params(optimizer_weight_decay=0.0, optimizer__lr=0.1)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)

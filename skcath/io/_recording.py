@@ -42,6 +42,7 @@ from .._format import (
     TIME,
     TORQUE_COLUMNS,
 )
+from .._validation import check_recordings
 from ..frames import _check_quat_order, tip_in_base_frame
 
 __all__ = ["VALID_STRINGS", "read_recording"]
@@ -1227,8 +1228,6 @@ def _recording_from_frame(frame, name, stem, options):
     X = pd.DataFrame(data, index=pd.RangeIndex(len(frame)), columns=list(REQUIRED_COLUMNS))
 
     # Final check of the assembled recording (single call site).
-    from .._validation import check_recordings
-
     require_sweep = not (phase == MOTION or n_sweep == 0)
     try:
         return check_recordings(X, y, require_sweep=require_sweep)

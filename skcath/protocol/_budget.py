@@ -28,6 +28,7 @@ from ..metrics import per_run_rmse
 from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
 from ..model_selection._split import _exclusion_set
 from ..sweep import reduce_sweep
+from ._figures import _METHOD_COLOURS, _new_figure
 from ._protocol import _LEARNER_COLUMNS, _finetune, _pretrain, _run_tasks
 from ._schedule import get_schedule
 
@@ -400,8 +401,6 @@ def plot_calibration_budget(summary):
     ImportError
         If matplotlib is not installed.
     """
-    from ._figures import _METHOD_COLOURS, _new_figure
-
     methods = [m for m in BUDGET_METHODS if m in summary.columns]
     full = int(summary["n_rays"].max())
     by_rays = summary[summary["stride"] == 1].sort_values("n_rays")

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from ._figures import write_figures
+
 __all__ = ["format_report", "write_results", "TABLE_FILES"]
 
 #: Table key -> CSV file name written by :func:`write_results`.
@@ -132,8 +134,6 @@ def write_results(tables, out_dir, *, figures=True):
             tables[key].to_csv(path, index=keep_index, float_format="%.6g")
             paths.append(path)
     if figures:
-        from ._figures import write_figures
-
         figure_tables = {key: tables[key] for key in FIGURE_TABLES if key in tables}
         paths.extend(write_figures(figure_tables, out))
     return paths

@@ -18,6 +18,8 @@ from numbers import Integral, Real
 import numpy as np
 import pandas as pd
 import torch
+from sklearn import get_config
+from sklearn.base import _fit_context
 from sklearn.exceptions import NotFittedError
 from sklearn.frozen import FrozenEstimator
 from sklearn.utils import check_random_state
@@ -272,7 +274,20 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         return self.criterion_(y_pred, y_true, mask)
 
     # ------------------------------------------------------------------ validation
-    def _validate_own_params(self):
+    def _validate_params(self):
+        """Check the parameters: what :func:`sklearn.base._fit_context` runs before ``fit``.
+
+        skorch's check of the argument names, which needs the initialised
+        components (skorch runs it in ``initialize`` and in ``set_params`` of
+        an initialised net), then the constraints of the learner's own
+        parameters and of their combinations. The latter are not checked again
+        inside a ``fit`` that has validated them already, nor where
+        scikit-learn's ``skip_parameter_validation`` is set.
+        """
+        if hasattr(self, "module_"):
+            super()._validate_params()
+        if get_config()["skip_parameter_validation"]:
+            return
         params = {key: getattr(self, key) for key in self._parameter_constraints}
         validate_parameter_constraints(
             self._parameter_constraints, params, caller_name=type(self).__name__
@@ -294,6 +309,15 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         X, y = check_recordings(X, y)
         check_backbone_columns(X, type(self).__name__)
         return X, y
+
+    def _check_training_data(self, X, y, method):
+        """The checked recordings and targets of ``fit`` or ``partial_fit``."""
+        if y is None:
+            raise ValueError(
+                f"{type(self).__name__} requires y to be passed, but the target y is "
+                f"None: {method} needs the tip positions y."
+            )
+        return self._check_X(X, y)
 
     def _pretrained_source(self):
         """The fitted residual whose weights and statistics start training, or None."""
@@ -427,9 +451,46 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             data["sweep_length"] = sweep_lengths[run_index]
         return data, window_target.astype(np.float32)
 
+    # ------------------------------------------------------------------ training
+    def _start_training(self):
+        """Initialise the network and the statistics: from ``pretrained``, or afresh.
+
+        A fresh start draws its weights from ``random_state``; the statistics
+        are then computed from the first training data.
+        """
+        with _torch_runtime(self.n_threads, self._seed()):
+            self.initialize()
+            source = self._pretrained_source()
+            if source is not None:
+                self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
+                self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
+                self.sigma_e_ = source.sigma_e_.copy()
+            else:
+                for name in ("x_scaler_", "s_scaler_", "sigma_e_"):
+                    self.__dict__.pop(name, None)
+
+    def _partial_fit(self, X, y, **fit_params):
+        """Train the initialised network for ``max_epochs`` on checked recordings."""
+        F, motion, sweep, e, _ = self._sequences(X, y)
+        if not hasattr(self, "sigma_e_"):
+            self._fit_statistics(F, e)
+        data, target = self._training_windows(X, motion, sweep)
+        self._record_columns(X)
+        seed = self._seed()
+        self._split_seed_ = None if seed is None else seed + 1
+        if seed is not None:
+            seed += len(self.history_ or [])
+        with _torch_runtime(self.n_threads, seed):
+            super().partial_fit(data, target, **fit_params)
+        return self
+
     # ------------------------------------------------------------------ public API
+    @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y, **fit_params):
         """Learn the residual ``e = y - b`` on the motion rows.
+
+        The network starts from ``pretrained`` or from a random initialisation,
+        unless ``warm_start`` is True and it is initialised already.
 
         Parameters
         ----------
@@ -446,54 +507,25 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         -------
         self : object
         """
-        self._validate_own_params()
-        if y is None:
-            raise ValueError(
-                f"{type(self).__name__} requires y to be passed, but the target y is "
-                "None: fit needs the tip positions y."
-            )
+        X, y = self._check_training_data(X, y, "fit")
         if not self.warm_start or not self.initialized_:
-            seed = self._seed()
-            with _torch_runtime(self.n_threads, seed):
-                self.initialize()
-                source = self._pretrained_source()
-                if source is not None:
-                    self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
-                    self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
-                    self.sigma_e_ = source.sigma_e_.copy()
-                else:
-                    for name in ("x_scaler_", "s_scaler_", "sigma_e_"):
-                        self.__dict__.pop(name, None)
-        return self.partial_fit(X, y, **fit_params)
+            self._start_training()
+        return self._partial_fit(X, y, **fit_params)
 
+    @_fit_context(prefer_skip_nested_validation=True)
     def partial_fit(self, X, y, classes=None, **fit_params):
         """Train for ``max_epochs`` more epochs without re-initialising the network.
 
-        Normalisation statistics are computed on the first call (or taken
-        from ``pretrained``) and kept afterwards. Parameters as in :meth:`fit`.
+        The first call starts the network as :meth:`fit` does and validates
+        the parameters; later calls check only the data, as scikit-learn's
+        ``partial_fit`` methods do. Normalisation statistics are computed on
+        the first call (or taken from ``pretrained``) and kept afterwards.
+        Parameters as in :meth:`fit`.
         """
-        self._validate_own_params()
-        if y is None:
-            raise ValueError(
-                f"{type(self).__name__} requires y to be passed, but the target y is "
-                "None: partial_fit needs the tip positions y."
-            )
+        X, y = self._check_training_data(X, y, "partial_fit")
         if not self.initialized_:
-            # the first call initialises as fit does, from pretrained if given
-            return self.fit(X, y, **fit_params)
-        X, y = self._check_X(X, y)
-        F, motion, sweep, e, _ = self._sequences(X, y)
-        if not hasattr(self, "sigma_e_"):
-            self._fit_statistics(F, e)
-        data, target = self._training_windows(X, motion, sweep)
-        self._record_columns(X)
-        seed = self._seed()
-        self._split_seed_ = None if seed is None else seed + 1
-        if seed is not None and self.initialized_:
-            seed += len(self.history_ or [])
-        with _torch_runtime(self.n_threads, seed):
-            super().partial_fit(data, target, **fit_params)
-        return self
+            self._start_training()
+        return self._partial_fit(X, y, **fit_params)
 
     def _seed(self):
         if self.random_state is None:
@@ -520,11 +552,13 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         Parameters
         ----------
         X : pandas.DataFrame
-            Recordings in the long format with the backbone columns.
+            Recordings in the long format with the backbone columns; the
+            network reads the motion rows and the run's sweep rows.
 
         Returns
         -------
         r : ndarray of shape (n_samples, 3)
+            Residual (mm) in the base frame, each coordinate within ``clip``.
         """
         if not self.initialized_ or not hasattr(self, "sigma_e_"):
             raise NotFittedError(
@@ -560,14 +594,15 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         Parameters
         ----------
         X : pandas.DataFrame
-            Recordings in the long format with the backbone columns.
+            Recordings in the long format with the nominal tip ``b`` in the
+            backbone columns ``b_x``, ``b_y``, ``b_z``.
 
         Returns
         -------
         y_pred : ndarray of shape (n_samples, 3)
+            Estimated tip positions (mm) in the base frame.
         """
         return self.predict_residual(X) + nominal_tip(X)
-
 
 
 def _setting_codes(X, runs):

@@ -35,28 +35,15 @@ class NoResidual(RecordingsMixin, RegressorMixin, BaseEstimator):
     >>> pipe.fit(X, y).predict(X)  # doctest: +SKIP
     """
 
-    def fit(self, X, y=None):
-        """Validate the recordings and the backbone columns; nothing is learned.
+    _parameter_constraints: dict = {}
 
-        Parameters
-        ----------
-        X : pandas.DataFrame
-            Recordings in the long format with the columns ``b_x, b_y, b_z``.
-        y : array-like of shape (n_samples, 3), optional
-            Tip positions (mm); validated if given, otherwise unused.
-
-        Returns
-        -------
-        self : object
-        """
-        X, _ = check_recordings(X, y)
+    def _check_X(self, X, y=None):
+        X, y = check_recordings(X, y)
         check_backbone_columns(X, type(self).__name__)
-        self._record_columns(X)
-        return self
+        return X, y
 
     def predict(self, X):
         """Nominal tip position ``b`` of every row (mm), shape (n_samples, 3)."""
         check_is_fitted(self)
-        X, _ = check_recordings(X)
-        check_backbone_columns(X, type(self).__name__)
+        X, _ = self._check_X(X)
         return nominal_tip(X)

@@ -1,0 +1,47 @@
+"""Warnings and errors of skcath.
+
+A leaf module: it imports nothing from the package, so that every other module
+can import it.
+"""
+
+__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning"]
+
+
+class InconsistentVersionWarning(UserWarning):
+    """An estimator is unpickled under another skcath version than it was pickled with.
+
+    Warned by :func:`skcath.persist.load` when the saved file's version differs
+    from the running one, and by the skcath estimators themselves when they are
+    unpickled directly (``pickle.load``, ``joblib.load``).
+
+    Parameters
+    ----------
+    estimator_name : str
+        Class name of the unpickled estimator.
+    original_version : str
+        skcath version that pickled it.
+    current_version : str
+        skcath version that unpickles it.
+    """
+
+    def __init__(self, *, estimator_name, original_version, current_version):
+        self.estimator_name = estimator_name
+        self.original_version = original_version
+        self.current_version = current_version
+
+    def __str__(self):
+        return (
+            f"{self.estimator_name} was pickled with skcath {self.original_version} and is "
+            f"unpickled with skcath {self.current_version}; its predictions may differ or it may "
+            "fail. Refit it with the running version, or install skcath "
+            f"{self.original_version} to use it."
+        )
+
+
+class IncompatibleVersionError(ValueError):
+    """A saved estimator was written by an incompatible skcath version.
+
+    Raised by :func:`skcath.persist.load` before anything is unpickled; pass
+    ``allow_version_mismatch=True`` to load the file anyway. See
+    :func:`skcath.persist.is_compatible_version` for the rule.
+    """
