@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .._format import SENSOR_POSE_COLUMNS
-from ..frames import _check_quat_order
+from .._validation import check_quat_order
 
 __all__ = ["read_ndi_csv"]
 
@@ -278,7 +278,7 @@ def read_ndi_csv(
         tracker = read_ndi_csv("aurora.csv", tip="0A", base="0B")
     """
     path = Path(path)
-    quat_order = _check_quat_order(quat_order)
+    quat_order = check_quat_order(quat_order)
     tip_id = _tool_value(tip)
     base_id = None if base is None else _tool_value(base)
     if base_id is not None and base_id == tip_id:

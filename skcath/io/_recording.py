@@ -42,7 +42,8 @@ from .._format import (
     TIME,
     TORQUE_COLUMNS,
 )
-from ..frames import _check_quat_order, tip_in_base_frame
+from .._validation import check_quat_order
+from ..frames import tip_in_base_frame
 
 __all__ = ["VALID_STRINGS", "read_recording"]
 
@@ -1081,7 +1082,7 @@ phase, n_sweep, valid, tip_offset
     ValueError
         On an invalid option.
     """
-    quat_order = _check_quat_order(quat_order)
+    quat_order = check_quat_order(quat_order)
     mapping = _check_columns_arg(columns, quat_order)
     constants = _check_number_map(constants, "constants", _CONSTANT_NAMES, finite=True)
     scale = _check_number_map(
