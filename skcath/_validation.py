@@ -38,6 +38,7 @@ __all__ = [
     "check_quat_order",
     "check_recordings",
     "check_target",
+    "check_tip_offset",
     "to_array",
 ]
 
@@ -146,6 +147,34 @@ def check_quat_order(quat_order) -> str:
             f"'xyzw' = scalar last); got {quat_order!r}."
         )
     return quat_order
+
+
+def check_tip_offset(tip_offset) -> np.ndarray:
+    """Validate ``tip_offset`` as three finite numbers (mm).
+
+    Parameters
+    ----------
+    tip_offset : array-like of shape (3,)
+        Offset of the tip from the tip sensor, in the tip sensor frame (mm).
+
+    Returns
+    -------
+    offset : ndarray of shape (3,)
+        A float copy.
+
+    Raises
+    ------
+    ValueError
+        If it is not three finite numbers.
+    """
+    offset = to_array(
+        tip_offset, "tip_offset must be a numeric array of shape (3,)", dtype=np.float64, copy=True
+    )
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise ValueError(
+            f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
+        )
+    return offset
 
 
 # ---------------------------------------------------------------------------

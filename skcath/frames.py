@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._format import QUAT_ORDERS
-from ._validation import check_quat_order, to_array
+from ._validation import check_quat_order, check_tip_offset, to_array
 
 __all__ = ["FRAMES", "QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
 
@@ -212,7 +212,7 @@ def tip_in_base_frame(
                 "tip_offset is given in the tip sensor frame, so tip_orientation "
                 "(n, 4) is required as well; got tip_orientation=None."
             )
-        offset = _check_offset(tip_offset)
+        offset = check_tip_offset(tip_offset)
         used["tip_orientation"] = q_ws
 
     n = p_wt.shape[0]
@@ -277,34 +277,6 @@ def _rotations(quats, quat_order, name, rows):
         )
     unit = quats / norms[:, None]
     return Rotation.from_quat(unit[:, _TO_XYZW[quat_order]])
-
-
-def _check_offset(tip_offset):
-    """Validate ``tip_offset`` as three finite numbers (mm).
-
-    Parameters
-    ----------
-    tip_offset : array-like of shape (3,)
-        Offset of the tip from the tip sensor, in the tip sensor frame (mm).
-
-    Returns
-    -------
-    offset : ndarray of shape (3,)
-        A float copy.
-
-    Raises
-    ------
-    ValueError
-        If it is not three finite numbers.
-    """
-    offset = to_array(
-        tip_offset, "tip_offset must be a numeric array of shape (3,)", dtype=np.float64, copy=True
-    )
-    if offset.shape != (3,) or not np.isfinite(offset).all():
-        raise ValueError(
-            f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
-        )
-    return offset
 
 
 #: Smallest tip motion (mm) across the first motor's sweep range, normal to the

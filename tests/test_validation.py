@@ -5,6 +5,8 @@ import pandas as pd
 import pytest
 
 from skcath._format import REQUIRED_COLUMNS
+from sklearn.utils._param_validation import InvalidParameterError
+
 from skcath._validation import check_recordings, check_target
 
 NUMERIC = ["t", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z"]
@@ -309,6 +311,16 @@ def test_run_id_reused_across_catheters_or_settings(column, noun):
     X = set_value(X, "r1", 6, column, "other")
     with pytest.raises(ValueError, match=rf"Run id 'r1' is used for several {noun}.*'other'"):
         check_recordings(X)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"require_sweep": "yes"}, {"copy": 1}, {"columns": 3}, {"columns": None}]
+)
+def test_bad_options_are_rejected_by_name(kwargs):
+    X, _ = make_recordings()
+    (name,) = kwargs
+    with pytest.raises(InvalidParameterError, match=rf"'{name}' parameter of check_recordings"):
+        check_recordings(X, **kwargs)
 
 
 # ---------------------------------------------------------------------------
