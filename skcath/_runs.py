@@ -2,8 +2,8 @@
 
 The long format holds one row per time sample; the rows of different runs may
 be interleaved, and within a run they are in time order (see
-``docs/data_format.rst``). Whatever needs the rows of one run goes through this
-module, the single place where rows are assigned to runs:
+``docs/data_format.rst``). Whatever needs the rows of one run takes them from
+here:
 
 - :func:`run_codes`: the run of every row, as integer codes in order of first
   appearance;
@@ -16,8 +16,9 @@ module, the single place where rows are assigned to runs:
   (:class:`PaddedRuns`) and back, for sequence models.
 
 All conversions are vectorised (one stable sort of the run codes, one gather
-or scatter over all rows). The input checks come from :mod:`skcath._validation`;
-:mod:`skcath.sequences` is the public home of the padded converters.
+or scatter over all rows). The input checks come from :mod:`skcath._validation`,
+which imports nothing from here (it orders the rows of a run itself, to check
+them); :mod:`skcath.sequences` is the public home of the padded converters.
 """
 
 from __future__ import annotations
