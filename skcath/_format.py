@@ -48,3 +48,7 @@ SENSOR_POSE_COLUMNS = {
     "base_position": ("base_px", "base_py", "base_pz"),
     "base_orientation": ("base_qw", "base_qx", "base_qy", "base_qz"),
 }
+
+#: Component orders accepted for quaternion columns: scalar first (``"wxyz"``,
+#: as NDI Aurora exports write them) or scalar last (``"xyzw"``, SciPy, ROS).
+QUAT_ORDERS = ("wxyz", "xyzw")

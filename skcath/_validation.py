@@ -1,16 +1,17 @@
-"""Validation of the long recording format and shared run-grouping helpers.
+"""Checks of the long recording format and of the arguments that carry it.
 
 Every estimator and transformer of the package validates its input through
 :func:`check_recordings`, so that a malformed recording fails early with a
 message that names the offending column, run and row, instead of failing deep
-inside numpy, pandas or torch. The grouping helpers (:func:`run_codes`,
-:func:`group_positions`, :func:`run_positions`) are the single place where rows
-are assigned to runs; the sequence converters in :mod:`skcath.sequences` build
-on them.
+inside numpy, pandas or torch. This module only checks and converts values to
+their canonical dtypes; assigning rows to runs and converting between the long
+format and per-run arrays is the job of :mod:`skcath._runs`, which builds on
+these checks.
 
 All checks are vectorised (``pd.factorize`` for the ids, ``np.diff`` over rows
-sorted by run for the time axis): the cost is linear in the number of rows with
-no Python loop over rows on valid input.
+sorted by run for the time axis): the cost is linear in the number of rows, up
+to one stable sort of the run codes, with no Python loop over rows on valid
+input.
 
 The format itself is described in ``docs/data_format.rst``; the column names
 live in :mod:`skcath._format`.
@@ -23,32 +24,22 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 from pandas.api import types as pdt
+from sklearn.utils._param_validation import validate_params
 
 from ._format import (
-    CATHETER,
-    MOTION,
-    MOTOR_COLUMNS,
-    PHASE,
-    PHASES,
-    REFERENCE_COLUMNS,
-    REQUIRED_COLUMNS,
-    RUN,
-    SETTING,
-    SWEEP,
-    TARGET_NAMES,
-    TIME,
-    TORQUE_COLUMNS,
+    CATHETER, MOTION, MOTOR_COLUMNS, PHASE, PHASES, QUAT_ORDERS, REFERENCE_COLUMNS,
+    REQUIRED_COLUMNS, RUN, SETTING, SWEEP, TARGET_NAMES, TIME, TORQUE_COLUMNS,
 )
 
 __all__ = [
     "FINITE_COLUMNS",
     "MAX_ABS_VALUE",
     "NUMERIC_COLUMNS",
+    "check_quat_order",
     "check_recordings",
     "check_target",
-    "group_positions",
-    "run_codes",
-    "run_positions",
+    "check_tip_offset",
+    "to_array",
 ]
 
 #: Numeric channels that must be finite on every row: time (s), motor angles
@@ -96,6 +87,97 @@ def _where(X: pd.DataFrame, position: int) -> str:
 
 
 # ---------------------------------------------------------------------------
+# plain arguments
+# ---------------------------------------------------------------------------
+def to_array(values, description: str, *, dtype=None, copy: bool = False) -> np.ndarray:
+    """``values`` as an ndarray, or a ValueError that says what was expected.
+
+    Parameters
+    ----------
+    values : array-like
+        Input given by the caller; never modified.
+    description : str
+        What was expected, starting the message, e.g. ``"y must be
+        array-like of shape (n_rows, 3)"``.
+    dtype : numpy dtype, default=None
+        Dtype of the result; None keeps the one numpy infers.
+    copy : bool, default=False
+        Return a new array even when ``values`` already is an array of
+        ``dtype``.
+
+    Returns
+    -------
+    array : ndarray
+
+    Raises
+    ------
+    ValueError
+        If numpy cannot convert ``values``; the message starts with
+        ``description``.
+    """
+    try:
+        if copy:
+            return np.array(values, dtype=dtype, copy=True)
+        return np.asarray(values, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{description}; converting it failed: {exc}") from None
+
+
+def check_quat_order(quat_order) -> str:
+    """Return ``quat_order`` if it is one of :data:`skcath.frames.QUAT_ORDERS`.
+
+    Parameters
+    ----------
+    quat_order : object
+        Value given by the caller.
+
+    Returns
+    -------
+    quat_order : str
+        The validated order.
+
+    Raises
+    ------
+    ValueError
+        If ``quat_order`` is not ``"wxyz"`` or ``"xyzw"``.
+    """
+    if not isinstance(quat_order, str) or quat_order not in QUAT_ORDERS:
+        raise ValueError(
+            f"quat_order must be one of {QUAT_ORDERS} ('wxyz' = scalar first, "
+            f"'xyzw' = scalar last); got {quat_order!r}."
+        )
+    return quat_order
+
+
+def check_tip_offset(tip_offset) -> np.ndarray:
+    """Validate ``tip_offset`` as three finite numbers (mm).
+
+    Parameters
+    ----------
+    tip_offset : array-like of shape (3,)
+        Offset of the tip from the tip sensor, in the tip sensor frame (mm).
+
+    Returns
+    -------
+    offset : ndarray of shape (3,)
+        A float copy.
+
+    Raises
+    ------
+    ValueError
+        If it is not three finite numbers.
+    """
+    offset = to_array(
+        tip_offset, "tip_offset must be a numeric array of shape (3,)", dtype=np.float64, copy=True
+    )
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise ValueError(
+            f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
+        )
+    return offset
+
+
+# ---------------------------------------------------------------------------
 # frame-level checks
 # ---------------------------------------------------------------------------
 def _check_frame(X, caller: str = "check_recordings") -> None:
@@ -131,6 +213,33 @@ def _check_columns_present(X: pd.DataFrame, required: Iterable[str]) -> None:
         )
 
 
+def _factorize(X: pd.DataFrame, column: str, expected: str) -> tuple[np.ndarray, np.ndarray]:
+    """Integer codes (order of first appearance, -1 for missing) and unique values.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings.
+    column : str
+        Column to factorize.
+    expected : str
+        What the column must hold, completing "Column ... must ..." in the
+        message raised when the values cannot be factorized.
+
+    Raises
+    ------
+    ValueError
+        If the column holds unhashable objects.
+    """
+    try:
+        codes, uniques = pd.factorize(X[column], sort=False, use_na_sentinel=True)
+    except TypeError as exc:
+        raise ValueError(
+            f"Column {column!r} must {expected}; factorizing it failed: {exc}"
+        ) from None
+    return np.asarray(codes, dtype=np.intp), np.asarray(uniques, dtype=object)
+
+
 def _factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
     """Integer codes (order of first appearance) and unique values of an id column.
 
@@ -139,14 +248,7 @@ def _factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray
     ValueError
         If the column contains missing values or unhashable objects.
     """
-    try:
-        codes, uniques = pd.factorize(X[column], sort=False, use_na_sentinel=True)
-    except TypeError as exc:
-        raise ValueError(
-            f"Column {column!r} must hold hashable ids (strings or integers); "
-            f"factorizing it failed: {exc}"
-        ) from None
-    codes = np.asarray(codes, dtype=np.intp)
+    codes, uniques = _factorize(X, column, "hold hashable ids (strings or integers)")
     missing = np.flatnonzero(codes < 0)
     if missing.size:
         first = int(missing[0])
@@ -155,7 +257,7 @@ def _factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray
             f"first at row label {_plain(X.index[first])!r} (position {first}). "
             "Every row needs a catheter, setting and run id."
         )
-    return codes, np.asarray(uniques, dtype=object)
+    return codes, uniques
 
 
 def _column_as_float(X: pd.DataFrame, column: str) -> np.ndarray:
@@ -256,18 +358,18 @@ def _check_magnitude(values: np.ndarray, name: str, locate, expected: str) -> No
 
 
 def _check_run_ids_unique(
-    X: pd.DataFrame,
-    codes: np.ndarray,
-    runs: np.ndarray,
-    first_positions: np.ndarray,
-    column: str,
+    X: pd.DataFrame, codes: np.ndarray, runs: np.ndarray, column: str
 ) -> None:
     """Raise if a run id appears with more than one value of ``column``."""
     other_codes, other_values = _factorize_ids(X, column)
-    differs = other_codes != other_codes[first_positions[codes]]
-    if not differs.any():
+    # a run holds a single value exactly when its smallest and largest codes agree
+    lowest = np.full(len(runs), len(other_values), dtype=np.intp)
+    highest = np.full(len(runs), -1, dtype=np.intp)
+    np.minimum.at(lowest, codes, other_codes)
+    np.maximum.at(highest, codes, other_codes)
+    bad_runs = np.flatnonzero(lowest != highest)
+    if not bad_runs.size:
         return
-    bad_runs = np.unique(codes[differs])
     run = int(bad_runs[0])
     values = other_values[np.unique(other_codes[codes == run])]
     noun = "catheters" if column == CATHETER else "settings"
@@ -281,14 +383,7 @@ def _check_run_ids_unique(
 
 def _phase_masks(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """Boolean masks of sweep and motion rows; raise on any other phase value."""
-    try:
-        codes, uniques = pd.factorize(X[PHASE], sort=False, use_na_sentinel=True)
-    except TypeError as exc:
-        raise ValueError(
-            f"Column {PHASE!r} must contain only {list(PHASES)}; factorizing it "
-            f"failed: {exc}"
-        ) from None
-    uniques = np.asarray(uniques, dtype=object)
+    codes, uniques = _factorize(X, PHASE, f"contain only {list(PHASES)}")
     bad = [value for value in uniques if value not in PHASES]
     n_missing = int(np.count_nonzero(codes < 0))
     if n_missing:
@@ -312,7 +407,6 @@ def _check_phase_order(
     codes: np.ndarray,
     runs: np.ndarray,
     order: np.ndarray,
-    bounds: np.ndarray,
     *,
     require_sweep: bool,
 ) -> None:
@@ -371,131 +465,6 @@ def _check_time_order(
 
 
 # ---------------------------------------------------------------------------
-# grouping helpers
-# ---------------------------------------------------------------------------
-def run_codes(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Integer run code of every row and the run ids in order of first appearance.
-
-    Parameters
-    ----------
-    X : pandas.DataFrame
-        Recordings in the long format; only the ``run`` column is used.
-
-    Returns
-    -------
-    codes : ndarray of shape (n_rows,), dtype intp
-        ``codes[i]`` is the index into ``runs`` of the run of row ``i``.
-    runs : ndarray of shape (n_runs,), dtype object
-        Run ids, in order of first appearance in ``X``.
-
-    Raises
-    ------
-    TypeError
-        If ``X`` is not a DataFrame.
-    ValueError
-        If the ``run`` column is missing or contains missing ids.
-    """
-    _check_frame(X, caller="run_codes")
-    _check_columns_present(X, (RUN,))
-    return _factorize_ids(X, RUN)
-
-
-def _first_positions(codes: np.ndarray, n_groups: int) -> np.ndarray:
-    """Row position of the first row of every group, for codes in order of first appearance."""
-    if codes.size == 0:
-        return np.zeros(0, dtype=np.intp)
-    seen_before = np.maximum.accumulate(np.concatenate(([-1], codes[:-1])))
-    firsts = np.flatnonzero(codes > seen_before)
-    if firsts.size != n_groups:
-        raise ValueError(
-            "Group codes must be numbered in order of first appearance "
-            "(as returned by run_codes)."
-        )
-    return firsts
-
-
-def group_positions(
-    codes: np.ndarray, n_groups: int | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Row positions sorted by group, keeping row order within each group.
-
-    Parameters
-    ----------
-    codes : array-like of int, shape (n_rows,)
-        Non-negative group code of every row (e.g. from :func:`run_codes`).
-    n_groups : int, optional
-        Number of groups; defaults to ``codes.max() + 1``. Groups without rows
-        get an empty slice.
-
-    Returns
-    -------
-    order : ndarray of shape (n_rows,), dtype intp
-        Row positions; the rows of group ``k`` are
-        ``order[bounds[k]:bounds[k + 1]]``, in their original row order.
-    bounds : ndarray of shape (n_groups + 1,), dtype intp
-        Slice boundaries into ``order``.
-    """
-    codes = np.asarray(codes)
-    if codes.ndim != 1 or not np.issubdtype(codes.dtype, np.integer):
-        raise ValueError(
-            f"codes must be a 1-D integer array, got shape {codes.shape} and "
-            f"dtype {codes.dtype}."
-        )
-    if codes.size and codes.min() < 0:
-        raise ValueError("codes must be non-negative.")
-    if n_groups is None:
-        n_groups = int(codes.max()) + 1 if codes.size else 0
-    counts = np.bincount(codes, minlength=n_groups)
-    if counts.size != n_groups:
-        raise ValueError(f"codes go up to {counts.size - 1}, but n_groups={n_groups}.")
-    bounds = np.zeros(n_groups + 1, dtype=np.intp)
-    np.cumsum(counts, out=bounds[1:])
-    if codes.size < 2 or np.all(codes[1:] >= codes[:-1]):
-        order = np.arange(codes.size, dtype=np.intp)
-    else:
-        # A stable sort keeps row order within a group; small integer types
-        # let numpy use its radix sort.
-        small = np.min_scalar_type(max(n_groups - 1, 0))
-        order = np.argsort(codes.astype(small, copy=False), kind="stable").astype(
-            np.intp, copy=False
-        )
-    return order, bounds
-
-
-def run_positions(X: pd.DataFrame, *, rows=None) -> list[np.ndarray]:
-    """Row positions of every run, in row order.
-
-    Parameters
-    ----------
-    X : pandas.DataFrame
-        Recordings in the long format; only the ``run`` column is used.
-    rows : array-like of bool, shape (n_rows,), optional
-        Restrict to the rows where ``rows`` is True (e.g. sweep rows). Runs
-        without selected rows get an empty array, so the list always has one
-        entry per run.
-
-    Returns
-    -------
-    positions : list of ndarray of int
-        ``positions[k]`` holds the integer row positions (for ``X.iloc``) of
-        the ``k``-th run in order of first appearance (see :func:`run_codes`).
-    """
-    codes, runs = run_codes(X)
-    selected = np.arange(len(X), dtype=np.intp)
-    if rows is not None:
-        rows = np.asarray(rows)
-        if rows.shape != (len(X),) or rows.dtype != bool:
-            raise ValueError(
-                f"rows must be a boolean mask of shape ({len(X)},), got shape "
-                f"{rows.shape} and dtype {rows.dtype}."
-            )
-        selected = selected[rows]
-    order, bounds = group_positions(codes[selected], len(runs))
-    ordered = selected[order]
-    return [ordered[bounds[k] : bounds[k + 1]] for k in range(len(runs))]
-
-
-# ---------------------------------------------------------------------------
 # target
 # ---------------------------------------------------------------------------
 def check_target(y, n_rows: int) -> np.ndarray:
@@ -536,12 +505,7 @@ def check_target(y, n_rows: int) -> np.ndarray:
             [_target_column_as_float(y.iloc[:, j], j) for j in range(3)]
         )
     else:
-        try:
-            values = np.array(y, copy=True)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(
-                f"y must be array-like of shape (n_rows, 3); converting it failed: {exc}"
-            ) from None
+        values = to_array(y, "y must be array-like of shape (n_rows, 3)", copy=True)
         if values.ndim != 2 or values.shape[1] != 3:
             raise ValueError(
                 f"y must have shape (n_rows, 3) with the tip position "
@@ -605,6 +569,16 @@ def _target_column_as_float(series: pd.Series, j: int) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # main entry point
 # ---------------------------------------------------------------------------
+@validate_params(
+    {
+        "X": "no_validation",
+        "y": "no_validation",
+        "columns": [str, "array-like"],
+        "require_sweep": ["boolean"],
+        "copy": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def check_recordings(
     X,
     y=None,
@@ -653,6 +627,9 @@ def check_recordings(
     ------
     TypeError
         If ``X`` is not a pandas DataFrame.
+    sklearn.utils._param_validation.InvalidParameterError
+        If ``columns`` is not a name or a sequence of names, or
+        ``require_sweep`` or ``copy`` is not a bool.
     ValueError
         On any violation of the format; the message names the column and,
         where it applies, the run id and row label. This includes finite
@@ -670,10 +647,9 @@ def check_recordings(
     _check_columns_present(X, required)
 
     codes, runs = _factorize_ids(X, RUN)
-    first_positions = _first_positions(codes, len(runs))
     for column in (CATHETER, SETTING):
         if column in required:
-            _check_run_ids_unique(X, codes, runs, first_positions, column)
+            _check_run_ids_unique(X, codes, runs, column)
 
     converted: dict[str, np.ndarray] = {}
     for column in NUMERIC_COLUMNS:
@@ -688,21 +664,18 @@ def check_recordings(
             )
             converted[column] = values
 
-    order = None
-    if PHASE in required:
-        sweep, _ = _phase_masks(X)
-        order, bounds = group_positions(codes, len(runs))
-        _check_phase_order(
-            X, sweep, codes, runs, order, bounds, require_sweep=require_sweep
-        )
-    elif require_sweep:
+    if PHASE not in required and require_sweep:
         raise ValueError(
             f"require_sweep=True needs the {PHASE!r} column; add it to `columns` "
             "or pass require_sweep=False."
         )
+    if PHASE in required or TIME in required:
+        # rows of every run together, in row order: the order the run is checked in
+        order = np.argsort(codes, kind="stable")
+    if PHASE in required:
+        sweep, _ = _phase_masks(X)
+        _check_phase_order(X, sweep, codes, runs, order, require_sweep=require_sweep)
     if TIME in required:
-        if order is None:
-            order, _ = group_positions(codes, len(runs))
         _check_time_order(X, converted[TIME], codes, runs, order)
 
     y_checked = None if y is None else check_target(y, len(X))

@@ -29,13 +29,13 @@ write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ._format import QUAT_ORDERS
+from ._validation import check_quat_order, check_tip_offset, to_array
+
 __all__ = ["FRAMES", "QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
 
 #: Frames a residual learner can work in: each run's sweep frame, or the base frame B.
 FRAMES = ("sweep", "base")
-
-#: Accepted quaternion component orders: scalar first or scalar last.
-QUAT_ORDERS = ("wxyz", "xyzw")
 
 # Column permutation that brings a quaternion of the given order to the
 # scalar-last (x, y, z, w) layout that ``Rotation.from_quat`` expects.
@@ -43,63 +43,6 @@ _TO_XYZW = {"wxyz": [1, 2, 3, 0], "xyzw": [0, 1, 2, 3]}
 
 # Quaternions with a norm below this are treated as zero (no orientation).
 _MIN_QUAT_NORM = 1e-12
-
-
-def _check_quat_order(quat_order):
-    """Return ``quat_order`` if it is one of :data:`QUAT_ORDERS`.
-
-    Parameters
-    ----------
-    quat_order : object
-        Value given by the caller.
-
-    Returns
-    -------
-    quat_order : str
-        The validated order.
-
-    Raises
-    ------
-    ValueError
-        If ``quat_order`` is not ``"wxyz"`` or ``"xyzw"``.
-    """
-    if not isinstance(quat_order, str) or quat_order not in QUAT_ORDERS:
-        raise ValueError(
-            f"quat_order must be one of {QUAT_ORDERS} ('wxyz' = scalar first, "
-            f"'xyzw' = scalar last); got {quat_order!r}."
-        )
-    return quat_order
-
-
-def _as_float_array(values, name, expected):
-    """Convert an array-like to a new float64 array.
-
-    Parameters
-    ----------
-    values : array-like
-        Input given by the caller; never modified.
-    name : str
-        Parameter name used in error messages.
-    expected : str
-        Description of the expected shape, for error messages.
-
-    Returns
-    -------
-    array : ndarray, dtype float64
-        A copy of the input.
-
-    Raises
-    ------
-    ValueError
-        If the input cannot be converted to a numeric array.
-    """
-    try:
-        return np.array(values, dtype=np.float64, copy=True)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"{name} must be a numeric array of shape {expected}; "
-            f"it could not be converted to float ({exc})."
-        ) from None
 
 
 def _as_float_rows(values, name, width):
@@ -124,7 +67,9 @@ def _as_float_rows(values, name, width):
     ValueError
         If the input is not numeric or does not have shape ``(n, width)``.
     """
-    array = _as_float_array(values, name, f"(n, {width})")
+    array = to_array(
+        values, f"{name} must be a numeric array of shape (n, {width})", dtype=np.float64, copy=True
+    )
     if array.ndim != 2 or array.shape[1] != width:
         hint = f" (for a single sample use shape (1, {width}))" if array.ndim == 1 else ""
         raise ValueError(
@@ -165,8 +110,10 @@ def quaternion_to_rotation(q, quat_order="wxyz"):
            [0., 1., 0.],
            [0., 0., 1.]])
     """
-    quat_order = _check_quat_order(quat_order)
-    quats = _as_float_array(q, "q", "(4,) or (n, 4)")
+    quat_order = check_quat_order(quat_order)
+    quats = to_array(
+        q, "q must be a numeric array of shape (4,) or (n, 4)", dtype=np.float64, copy=True
+    )
     single = quats.ndim == 1
     if single:
         quats = quats[None, :]
@@ -249,7 +196,7 @@ def tip_in_base_frame(
     >>> p.round(6) + 0.0
     array([[80.,  0.,  0.]])
     """
-    quat_order = _check_quat_order(quat_order)
+    quat_order = check_quat_order(quat_order)
     p_wt = _as_float_rows(tip_position, "tip_position", 3)
     p_wb = _as_float_rows(base_position, "base_position", 3)
     q_wb = _as_float_rows(base_orientation, "base_orientation", 4)
@@ -265,7 +212,7 @@ def tip_in_base_frame(
                 "tip_offset is given in the tip sensor frame, so tip_orientation "
                 "(n, 4) is required as well; got tip_orientation=None."
             )
-        offset = _check_offset(tip_offset)
+        offset = check_tip_offset(tip_offset)
         used["tip_orientation"] = q_ws
 
     n = p_wt.shape[0]
@@ -330,32 +277,6 @@ def _rotations(quats, quat_order, name, rows):
         )
     unit = quats / norms[:, None]
     return Rotation.from_quat(unit[:, _TO_XYZW[quat_order]])
-
-
-def _check_offset(tip_offset):
-    """Validate ``tip_offset`` as three finite numbers (mm).
-
-    Parameters
-    ----------
-    tip_offset : array-like of shape (3,)
-        Offset of the tip from the tip sensor, in the tip sensor frame (mm).
-
-    Returns
-    -------
-    offset : ndarray of shape (3,)
-        A float copy.
-
-    Raises
-    ------
-    ValueError
-        If it is not three finite numbers.
-    """
-    offset = _as_float_array(tip_offset, "tip_offset", "(3,)")
-    if offset.shape != (3,) or not np.isfinite(offset).all():
-        raise ValueError(
-            f"tip_offset must be three finite numbers (mm, tip sensor frame); got {tip_offset!r}."
-        )
-    return offset
 
 
 #: Smallest tip motion (mm) across the first motor's sweep range, normal to the

@@ -19,6 +19,7 @@ import pandas as pd
 from sklearn.utils import Bunch, check_random_state
 
 from . import _format as fmt
+from ._runs import run_codes
 from ._validation import (
     _check_columns_present,
     _check_finite,
@@ -26,7 +27,6 @@ from ._validation import (
     _column_as_float,
     _phase_masks,
     check_target,
-    run_codes,
 )
 
 __all__ = [

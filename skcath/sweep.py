@@ -42,13 +42,15 @@ the only Python loop is over excursions, so a 4300-sample sweep takes about
 from __future__ import annotations
 
 from dataclasses import dataclass
-from numbers import Integral
+from numbers import Integral, Real
 
 import numpy as np
 import pandas as pd
+from sklearn.utils._param_validation import Interval, validate_params
 
-from . import _format as fmt
-from ._validation import check_recordings, check_target, run_codes, run_positions
+from ._format import MOTOR_COLUMNS, PHASE, SWEEP
+from ._runs import run_codes, run_positions
+from ._validation import check_recordings, check_target, to_array
 
 __all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
 
@@ -228,13 +230,12 @@ def _circular_groups(angles: np.ndarray, tol: float) -> np.ndarray:
 # ---------------------------------------------------------------------------
 def _check_motor_angles(q, run, n_rays, min_samples) -> np.ndarray:
     """Validate the sweep motor angles and return them as a float64 array."""
-    try:
-        arr = np.asarray(q, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"The sweep motor angles{_of_run(run)} must be a numeric array of "
-            f"shape (n, 2) with columns q1, q2 (degrees); converting them failed: {exc}"
-        ) from None
+    arr = to_array(
+        q,
+        f"The sweep motor angles{_of_run(run)} must be a numeric array of shape (n, 2) "
+        "with columns q1, q2 (degrees)",
+        dtype=np.float64,
+    )
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(
             f"The sweep motor angles{_of_run(run)} must have shape (n, 2) with "
@@ -358,6 +359,194 @@ def _excursion_pieces(rho, ux, uy, neutral, significant, tol):
     return starts, stops, is_ray, csum, ssum, spread
 
 
+def _ray_spacing(ray_spacing_deg, n_rays: int) -> float:
+    """Nominal angle between neighbouring ray directions of the layout (radians)."""
+    if ray_spacing_deg is None:
+        return _TWO_PI / n_rays
+    try:
+        spacing_deg = float(ray_spacing_deg)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"ray_spacing_deg must be a number of degrees or None; got {ray_spacing_deg!r}."
+        ) from None
+    if not 0.0 < spacing_deg <= 360.0 / n_rays:
+        raise ValueError(
+            f"ray_spacing_deg must be in (0, 360 / n_rays] = (0, {360.0 / n_rays:g}] "
+            f"degrees for n_rays={n_rays} rays; got {ray_spacing_deg!r}."
+        )
+    return np.deg2rad(spacing_deg)
+
+
+def _find_neutral(q, run, n_rays, neutral_fraction, min_amplitude_deg):
+    """Step 1 of :func:`find_rays`: neutral position and threshold.
+
+    Returns
+    -------
+    q_neutral : ndarray of shape (2,)
+        Motor angles at neutral (degrees).
+    d : ndarray of shape (n, 2)
+        ``q - q_neutral`` (degrees).
+    rho : ndarray of shape (n,)
+        ``|q - q_neutral|`` (degrees).
+    neutral : ndarray of bool, shape (n,)
+        Samples at neutral.
+    threshold : float
+        Largest ``rho`` counted as neutral (degrees).
+    """
+    centre = _robust_centre(q)
+    d = q - centre
+    rho = np.hypot(d[:, 0], d[:, 1])
+    rho_max = float(rho.max())
+    _check_motion(q, rho_max, run, n_rays, min_amplitude_deg)
+    threshold = max(neutral_fraction * rho_max, _NOISE_FLOOR_SIGMAS * _noise_level(q))
+    neutral = rho <= threshold
+    if not neutral.any():
+        raise ValueError(
+            f"The sweep{_of_run(run)} never comes back to neutral: no sample lies "
+            f"within {threshold:.3g} deg of the estimated neutral motor angles "
+            f"{np.round(centre, 2).tolist()}; expected each ray to start and end at neutral."
+        )
+    for _ in range(5):
+        centre = q[neutral].mean(axis=0)
+        d = q - centre
+        rho = np.hypot(d[:, 0], d[:, 1])
+        updated = rho <= threshold
+        if np.array_equal(updated, neutral) or not updated.any():
+            break
+        neutral = updated
+    return centre, d, rho, neutral, threshold
+
+
+def _find_excursions(d, rho, neutral, spacing, min_amplitude_deg, run):
+    """Step 2 of :func:`find_rays`: excursions away from neutral and their directions.
+
+    Returns
+    -------
+    ux, uy : ndarray of shape (n,)
+        Unit direction ``(cos psi, sin psi)`` of every sample; 0 at neutral.
+    starts, stops, is_ray, csum, ssum : ndarray
+        The pieces of :func:`_excursion_pieces`.
+
+    Raises
+    ------
+    ValueError
+        If a ray candidate turns by more than a quarter of the spacing far
+        from neutral.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ux = np.where(neutral, 0.0, d[:, 0] / rho)
+        uy = np.where(neutral, 0.0, d[:, 1] / rho)
+    tol = 0.5 * spacing  # half the nominal spacing
+    significant = max(min_amplitude_deg, _SIGNIFICANT_FRACTION * float(rho.max()))
+    starts, stops, is_ray, csum, ssum, spread = _excursion_pieces(
+        rho, ux, uy, neutral, significant, tol
+    )
+    max_spread = _MAX_SPREAD_SPACINGS * spacing
+    if spread.max(initial=0.0) > max_spread:
+        i = int(np.argmax(spread))
+        raise ValueError(
+            f"The sweep{_of_run(run)} changes direction far from neutral within "
+            f"one excursion (sweep samples {int(starts[i])}-{int(stops[i]) - 1}): "
+            f"its direction psi deviates by up to {np.rad2deg(spread[i]):.1f} deg "
+            f"from its mean; expected out-and-back moves along rays from neutral, "
+            f"each within {np.rad2deg(max_spread):.1f} deg of one direction at "
+            f"rho above half its peak."
+        )
+    return ux, uy, (starts, stops, is_ray, csum, ssum)
+
+
+def _merge_rays(is_ray, csum, ssum, spacing):
+    """Step 3 of :func:`find_rays`: merge candidates pointing the same way into rays.
+
+    Returns
+    -------
+    directions : ndarray of shape (K,)
+        Ray directions (radians) in ``[-pi, pi)``, sorted ascending.
+    piece_label : ndarray of int, shape (n_pieces,)
+        Ray of every piece that is a ray candidate, -1 for the others.
+    """
+    cand = np.flatnonzero(is_ray)
+    cand_dir = np.arctan2(ssum[cand], csum[cand])
+    groups = _circular_groups(cand_dir, 0.5 * spacing)
+    n_found = int(groups.max()) + 1 if groups.size else 0
+    gx = np.bincount(groups, weights=csum[cand], minlength=n_found)
+    gy = np.bincount(groups, weights=ssum[cand], minlength=n_found)
+    group_dir = _wrap(np.arctan2(gy, gx))
+    order = np.argsort(group_dir)
+    rank = np.empty(n_found, dtype=np.intp)
+    rank[order] = np.arange(n_found)
+    piece_label = np.full(is_ray.size, -1, dtype=np.intp)
+    piece_label[cand] = rank[groups]
+    return group_dir[order], piece_label
+
+
+def _check_layout(directions, n_candidates, n_rays, spacing, ray_spacing_deg, run):
+    """Raise unless ``n_rays`` rays were found with no gap too wide between them."""
+    n_found = directions.size
+    layout = (
+        f"spaced {360.0 / n_rays:g} deg apart"
+        if ray_spacing_deg is None
+        else f"from a layout spaced {np.rad2deg(spacing):g} deg apart"
+    )
+    if n_found != n_rays:
+        what = "Rays missing" if n_found < n_rays else "Too many rays"
+        raise ValueError(
+            f"{what} in the sweep{_of_run(run)}: found {n_found} distinct "
+            f"ray(s) at directions {_fmt_deg(directions)} deg (from "
+            f"{n_candidates} excursion(s) away from neutral); expected "
+            f"n_rays={n_rays} rays {layout}."
+        )
+    gaps = np.diff(directions, append=directions[0] + _TWO_PI)
+    if ray_spacing_deg is None:
+        max_gap = _MAX_GAP_SPACINGS * _TWO_PI / n_rays
+    else:  # the rays left when the others of the layout are side by side, and slack
+        max_gap = _TWO_PI - (n_rays - 1) * spacing + (_MAX_GAP_SPACINGS - 1.0) * spacing
+    if gaps.max() > max_gap:
+        i = int(np.argmax(gaps))
+        a = np.rad2deg(directions[i]) % 360.0
+        b = np.rad2deg(directions[(i + 1) % n_found]) % 360.0
+        raise ValueError(
+            f"Rays missing in the sweep{_of_run(run)}: a gap of "
+            f"{np.rad2deg(gaps[i]):.1f} deg between the rays at {a:.1f} and "
+            f"{b:.1f} deg (directions found: {_fmt_deg(directions)} deg); expected "
+            f"{n_rays} rays {layout}, with no gap above "
+            f"{np.rad2deg(max_gap):.1f} deg."
+        )
+
+
+def _label_samples(starts, stops, piece_label, neutral, ux, uy, directions):
+    """Ray of every sample: ray candidates by excursion, small excursions by direction.
+
+    Returns
+    -------
+    labels : ndarray of int, shape (n,)
+        Ray index of every sample, -1 at neutral.
+    """
+    labels = np.full(neutral.size, -1, dtype=np.intp)
+    lengths = stops - starts
+    idx = np.repeat(starts - np.cumsum(np.concatenate([[0], lengths[:-1]])), lengths)
+    idx += np.arange(lengths.sum())
+    labels[idx] = np.repeat(piece_label, lengths)
+    loose = np.flatnonzero((labels < 0) & ~neutral)
+    if loose.size:
+        psi = np.arctan2(uy[loose], ux[loose])
+        dist = np.abs(_wrap(psi[:, None] - directions[None, :]))
+        labels[loose] = np.argmin(dist, axis=1)
+    return labels
+
+
+@validate_params(
+    {
+        "q": "no_validation",
+        "n_rays": [Interval(Integral, 2, None, closed="left")],
+        "run": "no_validation",
+        "neutral_fraction": [Interval(Real, 0.0, _FAR_FRACTION, closed="neither")],
+        "min_amplitude_deg": [Interval(Real, 0.0, None, closed="neither")],
+        "min_samples": [Interval(Integral, 1, None, closed="left"), None],
+        "ray_spacing_deg": "no_validation",
+    },
+    prefer_skip_nested_validation=True,
+)
 def find_rays(
     q,
     *,
@@ -408,6 +597,10 @@ def find_rays(
 
     Raises
     ------
+    sklearn.utils._param_validation.InvalidParameterError
+        When ``n_rays`` is not an integer of at least 2, ``neutral_fraction``
+        not in ``(0, 0.5)``, ``min_amplitude_deg`` not positive or
+        ``min_samples`` not a positive integer or None.
     ValueError
         Naming the run, when ``q`` is not of shape (n, 2) or not finite, when
         the sweep has fewer than ``min_samples`` samples, when the motors do
@@ -436,137 +629,25 @@ def find_rays(
     >>> rays.n_rays, round(rays.amplitude, 1)
     (8, 60.0)
     """
-    n_rays = int(n_rays)
-    if n_rays < 2:
-        raise ValueError(f"n_rays must be at least 2; got {n_rays}.")
-    if not 0.0 < neutral_fraction < _FAR_FRACTION:
-        raise ValueError(
-            f"neutral_fraction must be in (0, {_FAR_FRACTION}); got {neutral_fraction!r}."
-        )
-    if not min_amplitude_deg > 0.0:
-        raise ValueError(f"min_amplitude_deg must be positive; got {min_amplitude_deg!r}.")
-    if ray_spacing_deg is None:
-        spacing = _TWO_PI / n_rays
-    else:
-        try:
-            spacing_deg = float(ray_spacing_deg)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"ray_spacing_deg must be a number of degrees or None; got {ray_spacing_deg!r}."
-            ) from None
-        if not 0.0 < spacing_deg <= 360.0 / n_rays:
-            raise ValueError(
-                f"ray_spacing_deg must be in (0, 360 / n_rays] = (0, {360.0 / n_rays:g}] "
-                f"degrees for n_rays={n_rays} rays; got {ray_spacing_deg!r}."
-            )
-        spacing = np.deg2rad(spacing_deg)
+    spacing = _ray_spacing(ray_spacing_deg, n_rays)
     if min_samples is None:
         min_samples = 10 * n_rays
     q = _check_motor_angles(q, run, n_rays, int(min_samples))
 
     # 1. neutral position and threshold
-    centre = _robust_centre(q)
-    d = q - centre
-    rho = np.hypot(d[:, 0], d[:, 1])
-    rho_max = float(rho.max())
-    _check_motion(q, rho_max, run, n_rays, min_amplitude_deg)
-    threshold = max(neutral_fraction * rho_max, _NOISE_FLOOR_SIGMAS * _noise_level(q))
-    neutral = rho <= threshold
-    if not neutral.any():
-        raise ValueError(
-            f"The sweep{_of_run(run)} never comes back to neutral: no sample lies "
-            f"within {threshold:.3g} deg of the estimated neutral motor angles "
-            f"{np.round(centre, 2).tolist()}; expected each ray to start and end at neutral."
-        )
-    for _ in range(5):
-        centre = q[neutral].mean(axis=0)
-        d = q - centre
-        rho = np.hypot(d[:, 0], d[:, 1])
-        updated = rho <= threshold
-        if np.array_equal(updated, neutral) or not updated.any():
-            break
-        neutral = updated
-    q_neutral = centre
-
+    q_neutral, d, rho, neutral, threshold = _find_neutral(
+        q, run, n_rays, neutral_fraction, min_amplitude_deg
+    )
     # 2. excursions and their directions
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ux = np.where(neutral, 0.0, d[:, 0] / rho)
-        uy = np.where(neutral, 0.0, d[:, 1] / rho)
-    tol = 0.5 * spacing  # half the nominal spacing
-    significant = max(min_amplitude_deg, _SIGNIFICANT_FRACTION * float(rho.max()))
-    starts, stops, is_ray, csum, ssum, spread = _excursion_pieces(
-        rho, ux, uy, neutral, significant, tol
+    ux, uy, (starts, stops, is_ray, csum, ssum) = _find_excursions(
+        d, rho, neutral, spacing, min_amplitude_deg, run
     )
-    max_spread = _MAX_SPREAD_SPACINGS * spacing
-    if spread.max(initial=0.0) > max_spread:
-        i = int(np.argmax(spread))
-        raise ValueError(
-            f"The sweep{_of_run(run)} changes direction far from neutral within "
-            f"one excursion (sweep samples {int(starts[i])}-{int(stops[i]) - 1}): "
-            f"its direction psi deviates by up to {np.rad2deg(spread[i]):.1f} deg "
-            f"from its mean; expected out-and-back moves along rays from neutral, "
-            f"each within {np.rad2deg(max_spread):.1f} deg of one direction at "
-            f"rho above half its peak."
-        )
-
     # 3. merge candidates pointing the same way into rays
-    cand = np.flatnonzero(is_ray)
-    cand_dir = np.arctan2(ssum[cand], csum[cand])
-    groups = _circular_groups(cand_dir, tol)
-    n_found = int(groups.max()) + 1 if groups.size else 0
-    gx = np.bincount(groups, weights=csum[cand], minlength=n_found)
-    gy = np.bincount(groups, weights=ssum[cand], minlength=n_found)
-    group_dir = _wrap(np.arctan2(gy, gx))
-    order = np.argsort(group_dir)
-    directions = group_dir[order]
-    rank = np.empty(n_found, dtype=np.intp)
-    rank[order] = np.arange(n_found)
+    directions, piece_label = _merge_rays(is_ray, csum, ssum, spacing)
+    _check_layout(directions, int(is_ray.sum()), n_rays, spacing, ray_spacing_deg, run)
+    labels = _label_samples(starts, stops, piece_label, neutral, ux, uy, directions)
 
-    layout = (
-        f"spaced {360.0 / n_rays:g} deg apart"
-        if ray_spacing_deg is None
-        else f"from a layout spaced {np.rad2deg(spacing):g} deg apart"
-    )
-    if n_found != n_rays:
-        what = "Rays missing" if n_found < n_rays else "Too many rays"
-        raise ValueError(
-            f"{what} in the sweep{_of_run(run)}: found {n_found} distinct "
-            f"ray(s) at directions {_fmt_deg(directions)} deg (from "
-            f"{cand.size} excursion(s) away from neutral); expected "
-            f"n_rays={n_rays} rays {layout}."
-        )
-    gaps = np.diff(directions, append=directions[0] + _TWO_PI)
-    if ray_spacing_deg is None:
-        max_gap = _MAX_GAP_SPACINGS * _TWO_PI / n_rays
-    else:  # the rays left when the others of the layout are side by side, and slack
-        max_gap = _TWO_PI - (n_rays - 1) * spacing + (_MAX_GAP_SPACINGS - 1.0) * spacing
-    if gaps.max() > max_gap:
-        i = int(np.argmax(gaps))
-        a = np.rad2deg(directions[i]) % 360.0
-        b = np.rad2deg(directions[(i + 1) % n_found]) % 360.0
-        raise ValueError(
-            f"Rays missing in the sweep{_of_run(run)}: a gap of "
-            f"{np.rad2deg(gaps[i]):.1f} deg between the rays at {a:.1f} and "
-            f"{b:.1f} deg (directions found: {_fmt_deg(directions)} deg); expected "
-            f"{n_rays} rays {layout}, with no gap above "
-            f"{np.rad2deg(max_gap):.1f} deg."
-        )
-
-    # labels: ray candidates by excursion, small excursions by direction
-    piece_label = np.full(starts.size, -1, dtype=np.intp)
-    piece_label[cand] = rank[groups]
-    labels = np.full(len(q), -1, dtype=np.intp)
-    lengths = stops - starts
-    idx = np.repeat(starts - np.cumsum(np.concatenate([[0], lengths[:-1]])), lengths)
-    idx += np.arange(lengths.sum())
-    labels[idx] = np.repeat(piece_label, lengths)
-    loose = np.flatnonzero((labels < 0) & ~neutral)
-    if loose.size:
-        psi = np.arctan2(uy[loose], ux[loose])
-        dist = np.abs(_wrap(psi[:, None] - directions[None, :]))
-        labels[loose] = np.argmin(dist, axis=1)
-
-    amplitudes = np.zeros(n_found)
+    amplitudes = np.zeros(directions.size)
     on_ray = labels >= 0
     np.maximum.at(amplitudes, labels[on_ray], rho[on_ray])
     for array in (labels, directions, amplitudes, neutral, q_neutral):
@@ -585,6 +666,15 @@ def find_rays(
 # ---------------------------------------------------------------------------
 # check_sweep_references
 # ---------------------------------------------------------------------------
+@validate_params(
+    {
+        "ref": "no_validation",
+        "rays": "no_validation",
+        "run": "no_validation",
+        "min_fraction": [Interval(Real, 0.0, 1.0, closed="both")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: float = 0.5) -> None:
     """Check that the EM reference tip positions of a sweep can calibrate a backbone.
 
@@ -604,6 +694,10 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
 
     Raises
     ------
+    TypeError
+        When ``rays`` is not a :class:`SweepRays`.
+    sklearn.utils._param_validation.InvalidParameterError
+        When ``min_fraction`` is not in ``[0, 1]``.
     ValueError
         Naming the run, when ``ref`` does not have shape ``(n, 3)`` matching
         ``rays``, when fewer than ``min_fraction`` of a ray's samples have a
@@ -622,15 +716,12 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
             f"rays must be the SweepRays returned by find_rays; got "
             f"{type(rays).__module__}.{type(rays).__qualname__}."
         )
-    if not 0.0 <= min_fraction <= 1.0:
-        raise ValueError(f"min_fraction must be in [0, 1]; got {min_fraction!r}.")
-    try:
-        ref = np.asarray(ref, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"The sweep references{_of_run(run)} must be numeric of shape (n, 3) "
-            f"(ref_x, ref_y, ref_z in mm); converting them failed: {exc}"
-        ) from None
+    ref = to_array(
+        ref,
+        f"The sweep references{_of_run(run)} must be numeric of shape (n, 3) "
+        "(ref_x, ref_y, ref_z in mm)",
+        dtype=np.float64,
+    )
     n = rays.labels.size
     if ref.shape != (n, 3):
         raise ValueError(
@@ -832,8 +923,8 @@ def reduce_sweep(X, y=None, *, n_rays=None, stride=1, n_rays_swept=8):
         check_target(y, len(X))
     n_keep = n_rays_swept if n_rays is None else int(n_rays)
 
-    sweep = (checked[fmt.PHASE] == fmt.SWEEP).to_numpy()
-    q = checked[list(fmt.MOTOR_COLUMNS)].to_numpy()
+    sweep = (checked[PHASE] == SWEEP).to_numpy()
+    q = checked[list(MOTOR_COLUMNS)].to_numpy()
     keep = np.ones(len(checked), dtype=bool)
     _, runs = run_codes(checked)
     for run, pos in zip(runs, run_positions(checked, rows=sweep)):

@@ -1,5 +1,7 @@
 """Tests of skcath.io.read_recording on synthetic files and on the TEE-probe recordings."""
 
+import dataclasses
+import inspect
 import os
 from pathlib import Path
 
@@ -13,6 +15,7 @@ from skcath._format import REQUIRED_COLUMNS, SENSOR_POSE_COLUMNS
 from skcath._validation import check_recordings
 from skcath.frames import quaternion_to_rotation
 from skcath.io import read_recording
+from skcath.io._options import OPTION_NAMES, ReadingOptions
 
 N = 12
 
@@ -275,6 +278,58 @@ def test_arguments_not_modified(tmp_path, poses):
     assert columns == RIG_COLUMNS
     assert constants == {"q2": 0.0, "tau2": 0.0}
     assert scale == {"q1": 2.0}
+
+
+# ---------------------------------------------------------------------------
+# reading options
+# ---------------------------------------------------------------------------
+def test_reading_options_have_the_defaults_of_read_recording():
+    signature = inspect.signature(read_recording).parameters
+    keyword_only = [p for p in signature.values() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    assert OPTION_NAMES == tuple(p.name for p in keyword_only)
+    defaults = ReadingOptions()
+    for parameter in keyword_only:
+        assert getattr(defaults, parameter.name) == (
+            {} if parameter.name in ("columns", "constants", "scale") else parameter.default
+        ), parameter.name
+
+
+def test_reading_options_are_frozen_copies():
+    columns = {"tip_position": ["tx", "ty", "tz"], "q1": "enc"}
+    scale = {"tip_position": 1000.0}
+    options = ReadingOptions(columns=columns, scale=scale, valid=("flag", 1), tip_offset=[0, 0, 5])
+    columns["q2"] = "other"
+    scale["q1"] = 2.0
+    assert dict(options.columns) == {"tip_px": "tx", "tip_py": "ty", "tip_pz": "tz", "q1": "enc"}
+    assert dict(options.scale) == {"tip_px": 1000.0, "tip_py": 1000.0, "tip_pz": 1000.0}
+    assert (options.valid_column, options.valid_values) == ("flag", [1])
+    assert options.tip_offset == (0.0, 0.0, 5.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.n_sweep = 3
+    with pytest.raises(TypeError):
+        options.columns["q2"] = "other"
+    # the normalised options are valid options that give the same options again
+    fields = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
+    assert ReadingOptions(**fields) == options
+
+
+def test_reading_options_from_kwargs():
+    options = ReadingOptions.from_kwargs({"n_sweep": 4, "catheter": "A"}, "reader")
+    assert (options.n_sweep, options.catheter, options.phase, options.require_sweep) == (
+        4, "A", None, True
+    )
+    assert not ReadingOptions(n_sweep=0).require_sweep
+    assert not ReadingOptions(phase="motion").require_sweep
+    with pytest.raises(TypeError, match=r"reader\(\) got the unknown keyword argument\(s\) \['x'\]"):
+        ReadingOptions.from_kwargs({"x": 1}, "reader")
+
+
+def test_options_are_checked_before_the_file_is_read(tmp_path):
+    missing = tmp_path / "missing.csv"  # never read: the options fail first
+    with pytest.raises(ValueError, match="tip_offset must be three finite numbers"):
+        read_recording(missing, tip_offset=[0.0, 0.0])
+    with pytest.raises(ValueError, match="n_sweep must be a non-negative integer"):
+        read_recording(missing, n_sweep=-1)
 
 
 # ---------------------------------------------------------------------------

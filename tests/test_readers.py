@@ -5,6 +5,7 @@ import pandas as pd
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
+from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath import check_recordings
 from skcath._format import REQUIRED_COLUMNS
@@ -150,6 +151,16 @@ def test_align_streams_errors(change, kwargs, match):
     kwargs = {"tolerance": 0.01, **kwargs}
     with pytest.raises(ValueError, match=match):
         align_streams(motors, tracker, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"sort": "yes"}, {"on": 0}, {"tracker_on": ["t"]}]
+)
+def test_align_streams_rejects_bad_arguments_by_name(kwargs):
+    motors, tracker = _motor_stream(n=10), _tracker_stream(np.arange(5) * 0.02)[0]
+    (name,) = kwargs
+    with pytest.raises(InvalidParameterError, match=rf"'{name}' parameter of align_streams"):
+        align_streams(motors, tracker, tolerance=0.01, **kwargs)
 
 
 def test_read_streams_gives_long_format_with_dropouts(tmp_path):
@@ -409,6 +420,11 @@ def test_read_recordings_errors(tmp_path):
         read_recordings(progress=False)
     with pytest.raises(TypeError, match=r"unknown keyword argument\(s\) \['nsweep'\]"):
         read_recordings(tmp_path, nsweep=4, progress=False)
+
+
+def test_read_recordings_progress_must_be_a_bool(tmp_path):
+    with pytest.raises(InvalidParameterError, match="'progress' parameter of read_recordings"):
+        read_recordings(tmp_path, progress="no")
 
 
 def test_folder_lists_the_files_read_recording_accepts(tmp_path):

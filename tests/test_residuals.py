@@ -48,7 +48,7 @@ from skcath.residuals import (
     sweep_feature_names,
 )
 from skcath.residuals import _estimators
-from skcath.residuals._features import cut_windows, feature_frame, motor_deltas, pool_sweep
+from skcath.residuals._features import cut_windows, feature_frame, pool_sweep
 
 from _helpers import tiny_residual
 
@@ -189,18 +189,6 @@ def test_feature_names():
     assert step_feature_names(use_torque=False) == ("q1", "q2", "dq1", "dq2", "b_x", "b_y", "b_z")
     assert sweep_feature_names() == ("q1", "q2", "tau1", "tau2")
     assert sweep_feature_names(use_torque=False) == ("q1", "q2")
-
-
-def test_motor_deltas_with_interleaved_runs():
-    # rows of runs 0 and 1 interleaved, run 2 has no row, run 3 one row
-    codes = np.array([0, 1, 0, 1, 0, 3, 1])
-    q = np.array([[0, 10], [5, 50], [1, 12], [7, 49], [4, 11], [9, 9], [6, 40]], dtype=float)
-    dq = motor_deltas(q, codes, 4)
-    expected = np.array([[0, 0], [0, 0], [1, 2], [2, -1], [3, -1], [0, 0], [-1, -9]], dtype=float)
-    assert_array_equal(dq, expected)
-    # the same rows stored run after run give the same differences
-    order = np.argsort(codes, kind="stable")
-    assert_array_equal(motor_deltas(q[order], codes[order], 4), expected[order])
 
 
 def test_first_motion_step_continues_from_the_sweep(small):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath.datasets import simulate_run
 from skcath.datasets._protocol import min_jerk, sweep_trajectory
@@ -357,6 +358,24 @@ def test_run_is_optional_in_messages():
         find_rays(sweep_trajectory()[:50])
 
 
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"n_rays": 1},
+        {"n_rays": 8.0},
+        {"neutral_fraction": 0.0},
+        {"neutral_fraction": 0.5},
+        {"min_amplitude_deg": 0.0},
+        {"min_samples": 0},
+        {"min_samples": 80.0},
+    ],
+)
+def test_bad_arguments_are_rejected_by_name(kwargs):
+    (name,) = kwargs
+    with pytest.raises(InvalidParameterError, match=rf"'{name}' parameter of find_rays"):
+        find_rays(sweep_trajectory(), **kwargs)
+
+
 # ---------------------------------------------------------------------------
 # check_sweep_references
 # ---------------------------------------------------------------------------
@@ -458,3 +477,10 @@ def test_property_directions_found(start, amplitude, noise, order, jitter, neutr
     assert_directions(rays, commanded)
     assert_consistent(rays, q, atol_deg=2.0 + 40.0 * noise)
     np.testing.assert_allclose(rays.amplitudes, amplitude, atol=0.2 + 5 * noise)
+
+
+@pytest.mark.parametrize("min_fraction", [-0.1, 1.5, "half"])
+def test_references_bad_min_fraction(sweep, min_fraction):
+    q, rays, ref = sweep
+    with pytest.raises(InvalidParameterError, match="'min_fraction' parameter"):
+        check_sweep_references(ref, rays, min_fraction=min_fraction)

@@ -5,13 +5,9 @@ import pandas as pd
 import pytest
 
 from skcath._format import REQUIRED_COLUMNS
-from skcath._validation import (
-    check_recordings,
-    check_target,
-    group_positions,
-    run_codes,
-    run_positions,
-)
+from sklearn.utils._param_validation import InvalidParameterError
+
+from skcath._validation import check_recordings, check_target
 
 NUMERIC = ["t", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z"]
 
@@ -317,6 +313,16 @@ def test_run_id_reused_across_catheters_or_settings(column, noun):
         check_recordings(X)
 
 
+@pytest.mark.parametrize(
+    "kwargs", [{"require_sweep": "yes"}, {"copy": 1}, {"columns": 3}, {"columns": None}]
+)
+def test_bad_options_are_rejected_by_name(kwargs):
+    X, _ = make_recordings()
+    (name,) = kwargs
+    with pytest.raises(InvalidParameterError, match=rf"'{name}' parameter of check_recordings"):
+        check_recordings(X, **kwargs)
+
+
 # ---------------------------------------------------------------------------
 # y errors
 # ---------------------------------------------------------------------------
@@ -362,47 +368,3 @@ def test_y_infinite_is_rejected():
 def test_check_target_accepts_lists():
     out = check_target([[1, 2, 3], [4, 5, np.nan]], 2)
     assert out.dtype == np.float64 and np.isnan(out[1, 2])
-
-
-# ---------------------------------------------------------------------------
-# grouping helpers
-# ---------------------------------------------------------------------------
-def test_run_codes_follow_first_appearance():
-    X, _ = make_recordings(n_runs=3, n_sweep=1, n_motion=1)
-    X = X.iloc[[2, 0, 4, 3, 1, 5]]  # r1, r0, r2, r1, r0, r2
-    codes, runs = run_codes(X)
-    assert list(runs) == ["r1", "r0", "r2"]
-    np.testing.assert_array_equal(codes, [0, 1, 2, 0, 1, 2])
-
-
-def test_run_codes_rejects_missing_run():
-    X, _ = make_recordings()
-    with pytest.raises(ValueError, match=r"\['run'\]"):
-        run_codes(X.drop(columns="run"))
-
-
-def test_group_positions_is_stable():
-    codes = np.array([1, 0, 1, 2, 0, 1])
-    order, bounds = group_positions(codes, 4)
-    np.testing.assert_array_equal(order, [1, 4, 0, 2, 5, 3])
-    np.testing.assert_array_equal(bounds, [0, 2, 5, 6, 6])
-
-
-def test_group_positions_rejects_bad_codes():
-    with pytest.raises(ValueError, match="non-negative"):
-        group_positions(np.array([0, -1]))
-    with pytest.raises(ValueError, match="integer"):
-        group_positions(np.array([0.0, 1.0]))
-
-
-def test_run_positions_with_row_mask():
-    X, _ = make_recordings(n_runs=2, n_sweep=2, n_motion=2)
-    X = X.iloc[[0, 4, 1, 5, 2, 6, 3, 7]]
-    positions = run_positions(X)
-    np.testing.assert_array_equal(positions[0], [0, 2, 4, 6])
-    np.testing.assert_array_equal(positions[1], [1, 3, 5, 7])
-    motion = run_positions(X, rows=(X["phase"] == "motion").to_numpy())
-    np.testing.assert_array_equal(motion[0], [4, 6])
-    np.testing.assert_array_equal(motion[1], [5, 7])
-    nothing = run_positions(X, rows=np.zeros(len(X), dtype=bool))
-    assert [p.size for p in nothing] == [0, 0]

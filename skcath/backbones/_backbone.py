@@ -19,7 +19,8 @@ from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
-from .._validation import check_recordings, run_codes, run_positions
+from .._runs import run_codes, run_positions
+from .._validation import check_recordings
 from ..sweep import check_sweep_references, find_rays
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip

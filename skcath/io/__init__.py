@@ -14,9 +14,9 @@ See ``docs/data_format.rst`` for the long format and the column names.
 
 from ._align import AlignmentReport, align_streams, read_streams
 from ._many import read_recordings
+from ._convert import VALID_STRINGS
 from ._ndi import read_ndi_csv
-# _file_kind stays importable from skcath.io, where it was defined before.
-from ._recording import VALID_STRINGS, _file_kind, read_recording  # noqa: F401
+from ._recording import read_recording
 from ._ros import read_rosbag
 
 __all__ = [

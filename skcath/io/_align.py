@@ -14,14 +14,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from pandas.api import types as pdt
+from sklearn.utils._param_validation import validate_params
 
-from ._recording import (
-    _CSV_SUFFIXES,
-    _file_kind,
-    _options_from_kwargs,
-    _read_table,
-    _recording_from_frame,
-)
+from ._convert import recording_from_table
+from ._options import ReadingOptions
+from ._recording import CSV_SUFFIXES, file_kind, read_table
 
 __all__ = ["AlignmentReport", "align_streams", "read_streams"]
 
@@ -136,6 +133,19 @@ def _times(frame, on, label, sort):
     return out.reset_index(drop=True)
 
 
+@validate_params(
+    {
+        "motors": "no_validation",
+        "tracker": "no_validation",
+        "tolerance": "no_validation",
+        "on": [str],
+        "tracker_on": [str, None],
+        "latency": "no_validation",
+        "direction": "no_validation",
+        "sort": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def align_streams(
     motors,
     tracker,
@@ -190,6 +200,9 @@ def align_streams(
 
     Raises
     ------
+    sklearn.utils._param_validation.InvalidParameterError
+        If ``on`` or ``tracker_on`` is not a column name (str) or ``sort``
+        not a bool.
     ValueError
         If a time column is missing, not numeric, not finite, has duplicated
         values or is not increasing (with ``sort=False``); if ``tolerance``
@@ -274,27 +287,19 @@ def _stream_table(source, label):
         return source, None
     if isinstance(source, (str, Path)):
         path = Path(source)
-        kind, stem = _file_kind(path)
+        kind, stem = file_kind(path)
         if not path.is_file():
             raise ValueError(f"{label}: no such file {str(path)!r}.")
-        return _read_table(path, kind), stem
+        return read_table(path, kind), stem
     raise ValueError(
-        f"{label} must be a DataFrame or the path of a file ({', '.join(_CSV_SUFFIXES)}, "
+        f"{label} must be a DataFrame or the path of a file ({', '.join(CSV_SUFFIXES)}, "
         f".parquet); got {type(source).__name__}."
     )
 
 
 def read_streams(
-    motors,
-    tracker,
-    *,
-    tolerance,
-    on="t",
-    tracker_on=None,
-    latency=0.0,
-    direction="nearest",
-    sort=False,
-    **read_kwargs,
+    motors, tracker, *, tolerance, on="t", tracker_on=None, latency=0.0, direction="nearest",
+    sort=False, **read_kwargs,
 ):
     """Read a motor log and a tracker log into the long format.
 
@@ -340,7 +345,7 @@ def read_streams(
     columns = dict(read_kwargs.pop("columns", None) or {})
     if on != "t" and "t" not in columns:
         columns["t"] = on
-    options = _options_from_kwargs(
+    options = ReadingOptions.from_kwargs(
         {**read_kwargs, "columns": columns or None}, "read_streams"
     )
     motor_frame, stem = _stream_table(motors, "motors")
@@ -356,5 +361,5 @@ def read_streams(
         sort=sort,
     )
     name = "aligned streams" if stem is None else f"{stem} (aligned streams)"
-    X, y = _recording_from_frame(aligned, name, stem or "streams", options)
+    X, y = recording_from_table(aligned, name, stem or "streams", options)
     return X, y, report

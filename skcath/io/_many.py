@@ -12,17 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
 from .._format import CATHETER, ID_COLUMNS, RUN, SETTING
 from .._validation import check_recordings
-from ._recording import (
-    _CSV_SUFFIXES,
-    _OPTION_NAMES,
-    _PARQUET_SUFFIXES,
-    _file_kind,
-    read_recording,
-)
+from ._options import OPTION_NAMES, check_option_names
+from ._recording import CSV_SUFFIXES, PARQUET_SUFFIXES, file_kind, read_recording
 
 __all__ = ["read_recordings"]
 
@@ -35,11 +31,11 @@ _INTEGER_OPTIONS = ("n_sweep", CATHETER, SETTING, RUN)
 
 
 def _is_table(path):
-    """True for a file whose suffix :func:`read_recording` supports (:func:`_file_kind`)."""
+    """True for a file whose suffix :func:`read_recording` supports (:func:`~skcath.io._recording.file_kind`)."""
     if not path.is_file():
         return False
     try:
-        _file_kind(path)
+        file_kind(path)
     except ValueError:
         return False
     return True
@@ -72,7 +68,7 @@ def _files_of(source):
         where = f"no CSV or Parquet file matches {text!r}"
     if not paths:
         raise ValueError(
-            f"{where} (suffixes {', '.join((*_CSV_SUFFIXES, *_PARQUET_SUFFIXES))})."
+            f"{where} (suffixes {', '.join((*CSV_SUFFIXES, *PARQUET_SUFFIXES))})."
         )
     return paths
 
@@ -128,11 +124,11 @@ def _read_manifest(manifest):
             f"{name}: the manifest needs a {_MANIFEST_PATH!r} column; columns: "
             f"{list(table.columns)}."
         )
-    unknown = [c for c in table.columns if c != _MANIFEST_PATH and c not in _OPTION_NAMES]
+    unknown = [c for c in table.columns if c != _MANIFEST_PATH and c not in OPTION_NAMES]
     if unknown:
         raise ValueError(
             f"{name}: the manifest has the unknown column(s) {unknown}; besides "
-            f"{_MANIFEST_PATH!r} its columns must be reading options {list(_OPTION_NAMES)}."
+            f"{_MANIFEST_PATH!r} its columns must be reading options {list(OPTION_NAMES)}."
         )
     jobs = []
     for i, row in enumerate(table.to_dict("records")):
@@ -160,6 +156,15 @@ def _read_manifest(manifest):
     return jobs
 
 
+@validate_params(
+    {
+        "source": "no_validation",
+        "pattern": "no_validation",
+        "manifest": "no_validation",
+        "progress": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def read_recordings(
     source=None,
     *,
@@ -208,6 +213,11 @@ def read_recordings(
 
     Raises
     ------
+    TypeError
+        On a keyword argument that is not a reading option (the message
+        lists them).
+    sklearn.utils._param_validation.InvalidParameterError
+        If ``progress`` is not a bool.
     ValueError
         If both or neither of ``source`` and ``manifest`` are given, both
         ``pattern`` and ``manifest``; no file matches; a file name does not
@@ -231,12 +241,7 @@ def read_recordings(
     if pattern is not None and manifest is not None:
         raise ValueError("Give either pattern or manifest for the ids, not both.")
     regex = _check_pattern(pattern)
-    unknown = sorted(set(read_kwargs) - set(_OPTION_NAMES))
-    if unknown:
-        raise TypeError(
-            f"read_recordings() got the unknown keyword argument(s) {unknown}; the "
-            f"reading options are {list(_OPTION_NAMES)}."
-        )
+    check_option_names(read_kwargs, "read_recordings")
 
     if manifest is not None:
         jobs = _read_manifest(manifest)
@@ -245,7 +250,7 @@ def read_recordings(
         for path in _files_of(source):
             options = {}
             if regex is not None:
-                stem = _file_kind(path)[1]
+                stem = file_kind(path)[1]
                 match = regex.fullmatch(stem)
                 if match is None:
                     raise ValueError(

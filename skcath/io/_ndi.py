@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .._format import SENSOR_POSE_COLUMNS
-from ..frames import _check_quat_order
+from .._validation import check_quat_order
 
 __all__ = ["read_ndi_csv"]
 
@@ -210,6 +210,138 @@ def _tool_value(value):
     )
 
 
+def _check_tools(tip, base, valid_states):
+    """Tool ids of the tip and base sensors, and the accepted status keys.
+
+    Raises
+    ------
+    ValueError
+        If a tool is not a str or int, both name the same tool, or
+        ``valid_states`` is not a sequence of strings.
+    """
+    tip_id = _tool_value(tip)
+    base_id = None if base is None else _tool_value(base)
+    if base_id is not None and base_id == tip_id:
+        raise ValueError(f"tip and base name the same tool {tip!r}; give two tools.")
+    if isinstance(valid_states, str) or not all(isinstance(s, str) for s in valid_states):
+        raise ValueError(
+            f"valid_states must be a sequence of status strings; got {valid_states!r}."
+        )
+    return tip_id, base_id, {_key(s) for s in valid_states}
+
+
+def _block_poses(rows, header, blocks, accepted, quat_order, path):
+    """Every tool block as one long table: row index, tool id, pose.
+
+    Returns
+    -------
+    poses : pandas.DataFrame
+        Columns ``row``, ``tool`` and ``qw, qx, qy, qz, px, py, pz``; one
+        row per file row and block, rows without a tool id left out.
+    """
+    n = len(rows)
+    parts = []
+    for number, block in enumerate(blocks, start=1):
+        if block["tool"] is None:
+            tools = np.full(n, str(number), dtype=object)
+        else:
+            tools = np.array([row[block["tool"]].strip().upper() for row in rows], dtype=object)
+        if block["status"] is None:
+            dropout = np.zeros(n, dtype=bool)
+        else:
+            dropout = np.array(
+                [_key(row[block["status"]]) not in accepted for row in rows], dtype=bool
+            )
+        quat = [_pose_numbers(rows, j, header, path, dropout) for j in block["quat"]]
+        pose = {f"q{c}": quat[quat_order.index(c)] for c in "wxyz"}
+        for c, j in zip("xyz", block["position"]):
+            pose[f"p{c}"] = _pose_numbers(rows, j, header, path, dropout)
+        part = pd.DataFrame(pose)
+        part.insert(0, "tool", tools)
+        part.insert(0, "row", np.arange(n))
+        parts.append(part)
+    poses = pd.concat(parts, ignore_index=True)
+    return poses[poses["tool"] != ""]
+
+
+def _frame_meta(rows, header, path):
+    """Frame number and timestamp of every file row, where the file has them.
+
+    Returns
+    -------
+    meta : pandas.DataFrame
+        Column ``row`` and, if found, ``frame`` (integers when whole) and
+        ``t`` (the file's unit).
+
+    Raises
+    ------
+    ValueError
+        If a frame or time cell is not a number.
+    """
+    keys = [_key(name) for name in header]
+    meta = pd.DataFrame({"row": np.arange(len(rows))})
+    for name, col in (("frame", _first(keys, _FRAME_NAMES)), ("t", _first(keys, _TIME_NAMES))):
+        if col is None:
+            continue
+        text = pd.Series([row[col] for row in rows], dtype=object)
+        values = pd.to_numeric(text, errors="coerce")
+        bad = np.flatnonzero(values.isna().to_numpy())
+        if bad.size:
+            raise ValueError(
+                f"{path.name}: column {header[col]!r} must hold numbers; got "
+                f"{rows[int(bad[0])][col]!r} at data row {int(bad[0])}."
+            )
+        values = values.to_numpy(dtype=np.float64)
+        if name == "frame" and np.all(values == np.round(values)):
+            values = values.astype(np.int64)
+        meta[name] = values
+    return meta
+
+
+def _frame_key(wide, meta, path):
+    """Columns that identify a frame: the file row (wide), else frame number or time."""
+    if wide:
+        return ["row"]
+    if "frame" in meta:
+        return ["frame"]
+    if "t" in meta:
+        return ["t"]
+    raise ValueError(
+        f"{path.name}: one row per tool but neither a frame number nor a "
+        "timestamp column to match the tools of one frame."
+    )
+
+
+def _sensor_pose(poses, key, sensor, tool, path):
+    """The pose of one tool in every frame, in the skcath sensor-pose column names.
+
+    Raises
+    ------
+    ValueError
+        If the tool is not in the file (the message lists the tools present)
+        or appears twice in one frame.
+    """
+    chosen = poses[poses["tool"] == tool]
+    if chosen.empty:
+        present = sorted(poses["tool"].unique().tolist())
+        raise ValueError(
+            f"{path.name}: {sensor}={tool!r} is not a tool of this file; tools "
+            f"present: {present}."
+        )
+    duplicated = chosen.duplicated(subset=key)
+    if duplicated.any():
+        at = chosen.loc[duplicated, key[0]].iloc[0]
+        raise ValueError(
+            f"{path.name}: tool {tool!r} appears more than once in one frame "
+            f"({key[0]} = {at!r})."
+        )
+    names = {
+        **{f"p{c}": n for c, n in zip("xyz", SENSOR_POSE_COLUMNS[f"{sensor}_position"])},
+        **{f"q{n[-1]}": n for n in SENSOR_POSE_COLUMNS[f"{sensor}_orientation"]},
+    }
+    return chosen[key + list(names)].rename(columns=names)
+
+
 def read_ndi_csv(
     path,
     *,
@@ -278,104 +410,21 @@ def read_ndi_csv(
         tracker = read_ndi_csv("aurora.csv", tip="0A", base="0B")
     """
     path = Path(path)
-    quat_order = _check_quat_order(quat_order)
-    tip_id = _tool_value(tip)
-    base_id = None if base is None else _tool_value(base)
-    if base_id is not None and base_id == tip_id:
-        raise ValueError(f"tip and base name the same tool {tip!r}; give two tools.")
-    if isinstance(valid_states, str) or not all(isinstance(s, str) for s in valid_states):
-        raise ValueError(
-            f"valid_states must be a sequence of status strings; got {valid_states!r}."
-        )
-    accepted = {_key(s) for s in valid_states}
+    quat_order = check_quat_order(quat_order)
+    tip_id, base_id, accepted = _check_tools(tip, base, valid_states)
 
     header, rows = _read_rows(path)
-    keys = [_key(name) for name in header]
     blocks = _tool_blocks(header, path)
-    frame_col = _first(keys, _FRAME_NAMES)
-    time_col = _first(keys, _TIME_NAMES)
-    n = len(rows)
-
-    # every block as a long table: row index, tool id, pose (w, x, y, z order)
-    parts = []
-    for number, block in enumerate(blocks, start=1):
-        if block["tool"] is None:
-            tools = np.full(n, str(number), dtype=object)
-        else:
-            tools = np.array([row[block["tool"]].strip().upper() for row in rows], dtype=object)
-        if block["status"] is None:
-            dropout = np.zeros(n, dtype=bool)
-        else:
-            dropout = np.array(
-                [_key(row[block["status"]]) not in accepted for row in rows], dtype=bool
-            )
-        quat = [_pose_numbers(rows, j, header, path, dropout) for j in block["quat"]]
-        pose = {f"q{c}": quat[quat_order.index(c)] for c in "wxyz"}
-        for c, j in zip("xyz", block["position"]):
-            pose[f"p{c}"] = _pose_numbers(rows, j, header, path, dropout)
-        part = pd.DataFrame(pose)
-        part.insert(0, "tool", tools)
-        part.insert(0, "row", np.arange(n))
-        parts.append(part)
-    poses = pd.concat(parts, ignore_index=True)
-    poses = poses[poses["tool"] != ""]
-
-    wide = len(blocks) > 1 or poses["tool"].nunique() <= 1
-    meta = pd.DataFrame({"row": np.arange(n)})
-    for name, col in (("frame", frame_col), ("t", time_col)):
-        if col is not None:
-            text = pd.Series([row[col] for row in rows], dtype=object)
-            values = pd.to_numeric(text, errors="coerce")
-            bad = np.flatnonzero(values.isna().to_numpy())
-            if bad.size:
-                raise ValueError(
-                    f"{path.name}: column {header[col]!r} must hold numbers; got "
-                    f"{rows[int(bad[0])][col]!r} at data row {int(bad[0])}."
-                )
-            values = values.to_numpy(dtype=np.float64)
-            if name == "frame" and np.all(values == np.round(values)):
-                values = values.astype(np.int64)
-            meta[name] = values
-    if wide:
-        key = ["row"]
-    elif "frame" in meta:
-        key = ["frame"]
-    elif "t" in meta:
-        key = ["t"]
-    else:
-        raise ValueError(
-            f"{path.name}: one row per tool but neither a frame number nor a "
-            "timestamp column to match the tools of one frame."
-        )
+    poses = _block_poses(rows, header, blocks, accepted, quat_order, path)
+    meta = _frame_meta(rows, header, path)
+    key = _frame_key(len(blocks) > 1 or poses["tool"].nunique() <= 1, meta, path)
     poses = poses.merge(meta, on="row", how="left")
     frames = meta.drop_duplicates(subset=key, keep="first") if key != ["row"] else meta
 
     stream = frames.reset_index(drop=True)
-    present = sorted(poses["tool"].unique().tolist())
     for sensor, tool in (("tip", tip_id), ("base", base_id)):
-        if tool is None:
-            continue
-        chosen = poses[poses["tool"] == tool]
-        if chosen.empty:
-            raise ValueError(
-                f"{path.name}: {sensor}={tool!r} is not a tool of this file; tools "
-                f"present: {present}."
-            )
-        duplicated = chosen.duplicated(subset=key)
-        if duplicated.any():
-            at = chosen.loc[duplicated, key[0]].iloc[0]
-            raise ValueError(
-                f"{path.name}: tool {tool!r} appears more than once in one frame "
-                f"({key[0]} = {at!r})."
-            )
-        names = {
-            **{f"p{c}": n for c, n in zip("xyz", SENSOR_POSE_COLUMNS[f"{sensor}_position"])},
-            **{
-                f"q{n[-1]}": n for n in SENSOR_POSE_COLUMNS[f"{sensor}_orientation"]
-            },
-        }
-        chosen = chosen[key + list(names)].rename(columns=names)
-        stream = stream.merge(chosen, on=key, how="left")
+        if tool is not None:
+            stream = stream.merge(_sensor_pose(poses, key, sensor, tool, path), on=key, how="left")
     stream = stream.drop(columns="row")
     # the left merge keeps the order of ``frames``: file order
     return stream.reset_index(drop=True)

@@ -15,7 +15,8 @@ import pandas as pd
 
 from .._format import SENSOR_POSE_COLUMNS
 from ._align import align_streams
-from ._recording import _options_from_kwargs, _recording_from_frame
+from ._convert import recording_from_table
+from ._options import ReadingOptions
 
 __all__ = ["read_rosbag"]
 
@@ -309,7 +310,7 @@ def read_rosbag(
         raise ValueError(f"stamp must be one of {list(_STAMPS)}; got {stamp!r}.")
     if "rate_hz" in read_kwargs:
         raise ValueError("read_rosbag takes the time from the bag; rate_hz is not accepted.")
-    options = _options_from_kwargs(read_kwargs, "read_rosbag")
+    options = ReadingOptions.from_kwargs(read_kwargs, "read_rosbag")
     if not path.exists():
         raise ValueError(f"no such bag {str(path)!r}.")
     bag = path.parent if path.suffix in (".db3", ".mcap") else path
@@ -338,5 +339,5 @@ def read_rosbag(
             + f"): {exc}"
         ) from None
     stem = bag.name[: -len(".bag")] if bag.suffix == ".bag" else bag.name
-    X, y = _recording_from_frame(aligned, bag.name, stem, options)
+    X, y = recording_from_table(aligned, bag.name, stem, options)
     return X, y, report

@@ -25,7 +25,8 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
-from .._validation import check_recordings, run_codes
+from .._runs import run_codes
+from .._validation import check_recordings
 from ..backbones import PCCParams, PDLParams
 from ..backbones._backbone import _BaseBackbone, _calibrate_run
 from ..frames import sweep_frame

@@ -31,7 +31,8 @@ from skorch.utils import to_tensor
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
-from .._validation import check_recordings, group_positions
+from .._runs import group_positions
+from .._validation import check_recordings
 from ..backbones import BACKBONE_COLUMNS
 from ..frames import FRAMES, sweep_frame
 from ..sequences import from_padded, to_padded

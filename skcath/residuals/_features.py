@@ -14,14 +14,14 @@ import numpy as np
 import pandas as pd
 
 from .. import _format as fmt
-from .._validation import group_positions, run_codes
+from .._runs import run_codes, run_differences
 from ..backbones import BACKBONE_COLUMNS
 
 __all__ = [
     "DELTA_COLUMNS",
     "Standardizer",
     "cut_windows",
-    "motor_deltas",
+    "feature_frame",
     "pool_sweep",
     "step_feature_names",
     "sweep_feature_names",
@@ -45,35 +45,6 @@ def sweep_feature_names(use_torque: bool = True) -> tuple[str, ...]:
     """Names of the sweep features ``s_k``: ``[q1, q2, tau1, tau2]`` or ``[q1, q2]``."""
     torque = fmt.TORQUE_COLUMNS if use_torque else ()
     return (*fmt.MOTOR_COLUMNS, *torque)
-
-
-def motor_deltas(q: np.ndarray, codes: np.ndarray, n_runs: int) -> np.ndarray:
-    """Per-sample motor-angle differences ``dq_t = q_t - q_{t-1}`` within each run.
-
-    Parameters
-    ----------
-    q : ndarray of shape (n_rows, 2)
-        Motor angles (degrees), rows of a run in time order (runs may interleave).
-    codes : ndarray of int, shape (n_rows,)
-        Run code of every row (from :func:`skcath._validation.run_codes`).
-    n_runs : int
-        Number of runs.
-
-    Returns
-    -------
-    dq : ndarray of shape (n_rows, 2)
-        Difference to the previous row of the same run (degrees); 0 on the
-        first row of every run. The first motion row differs from the last
-        sweep row, so the motion sequence starts with the true step.
-    """
-    order, bounds = group_positions(codes, n_runs)
-    q_sorted = q[order]
-    d = np.zeros_like(q_sorted)
-    d[1:] = q_sorted[1:] - q_sorted[:-1]
-    d[bounds[:-1][np.diff(bounds) > 0]] = 0.0  # first row of every run
-    dq = np.empty_like(d)
-    dq[order] = d
-    return dq
 
 
 @dataclass(frozen=True)
@@ -206,11 +177,15 @@ def cut_windows(lengths: np.ndarray, window: int | None, step: int | None = None
 def feature_frame(X: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
     """Recordings with the ``dq1``, ``dq2`` columns added, plus run codes and ids.
 
-    ``X`` must be a checked long-format frame with the backbone columns.
+    ``X`` must be a checked long-format frame with the backbone columns. The
+    motor-angle differences ``dq_t = q_t - q_{t-1}`` (degrees per sample) are
+    taken within each run and are 0 on its first row; the first motion row
+    differs from the last sweep row, so the motion sequence starts with the
+    true step.
     """
     codes, runs = run_codes(X)
     q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-    dq = motor_deltas(q, codes, len(runs))
+    dq = run_differences(q, codes, len(runs))
     keep = [*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE]
     keep = [c for c in keep if c in X.columns]
     F = X[keep].copy()
