@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from sklearn.utils import Bunch
-from sklearn.utils._param_validation import Interval, StrOptions, validate_params
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .. import _format as fmt
 from .._validation import check_recordings
@@ -36,7 +36,7 @@ from ._protocol import (
     pretrain_models,
     protocol_folds,
 )
-from ._schedule import Schedule, get_schedule
+from ._schedule import SCHEDULE_CONSTRAINT, get_schedule
 
 __all__ = [
     "BUDGET_FILES",
@@ -119,7 +119,7 @@ def _sweep_size(X, stride):
         "strides": "no_validation",
         "n_rays_swept": "no_validation",
         "learned": ["boolean"],
-        "schedule": [StrOptions({"full", "quick"}), Schedule],
+        "schedule": SCHEDULE_CONSTRAINT,
         "catheters": "no_validation",
         "exclude_settings": "no_validation",
         "n_jobs": [Integral, None],
@@ -360,6 +360,7 @@ def _learned_records(
     return records
 
 
+@validate_params({"result": [Bunch]}, prefer_skip_nested_validation=True)
 def format_budget_report(result):
     """The budget table as text, with a header naming the runs and the schedule.
 
@@ -399,6 +400,7 @@ def format_budget_report(result):
     return "\n".join(lines)
 
 
+@validate_params({"summary": [pd.DataFrame]}, prefer_skip_nested_validation=True)
 def plot_calibration_budget(summary):
     """Error against the number of rays and against the sweep stride.
 
@@ -447,6 +449,15 @@ def plot_calibration_budget(summary):
     return figure
 
 
+@validate_params(
+    {
+        "result": [Bunch],
+        "out_dir": [str, os.PathLike],
+        "figure": ["boolean"],
+        "dpi": [Interval(Real, 0, None, closed="neither")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def write_budget_results(result, out_dir, *, figure=True, dpi=150):
     """Write the budget tables as CSV and, optionally, the figure as PNG.
 

@@ -22,7 +22,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.frozen import FrozenEstimator
 from sklearn.utils import Bunch
-from sklearn.utils._param_validation import StrOptions, validate_params
+from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
 from .. import _format as fmt
@@ -35,7 +35,7 @@ from ..model_selection import (
     exclusion_set,
 )
 from ._methods import BACKBONE_METHODS, BACKBONES, LOCO_METHOD, LOCO_VARIANT, METHODS, make_learner
-from ._schedule import Schedule, get_schedule
+from ._schedule import SCHEDULE_CONSTRAINT, get_schedule
 
 __all__ = [
     "Fold",
@@ -53,9 +53,6 @@ LEARNER_COLUMNS = (*fmt.REQUIRED_COLUMNS, *BACKBONE_COLUMNS)
 
 #: The backbone the learned methods correct (the ``backbone`` of every learned method).
 (_LEARNER_BACKBONE,) = {method.backbone for method in METHODS.values() if method.learner is not None}
-
-#: A schedule by name or a Schedule, as the public functions take it.
-_SCHEDULE = [StrOptions({"full", "quick"}), Schedule]
 
 
 class Fold(NamedTuple):
@@ -176,7 +173,7 @@ def calibrate_backbones(X, **backbone_params):
 @validate_params(
     {
         "X": "no_validation",
-        "schedule": _SCHEDULE,
+        "schedule": SCHEDULE_CONSTRAINT,
         "exclude_settings": "no_validation",
         "catheters": ["array-like", None],
     },
@@ -231,7 +228,7 @@ _STAGE_PARAMETERS = {
     "X": [pd.DataFrame],
     "y": ["array-like"],
     "folds": ["array-like"],
-    "schedule": _SCHEDULE,
+    "schedule": SCHEDULE_CONSTRAINT,
     "variants": ["array-like", None],
     "n_jobs": [Integral, None],
     "verbose": ["verbose"],
@@ -388,7 +385,7 @@ def _evaluated(predictions, rows):
     {
         "X": "no_validation",
         "y": ["array-like", None],
-        "schedule": _SCHEDULE,
+        "schedule": SCHEDULE_CONSTRAINT,
         "exclude_settings": "no_validation",
         "n_jobs": [Integral, None],
         "verbose": ["verbose"],

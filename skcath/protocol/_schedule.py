@@ -82,11 +82,11 @@ QUICK = Schedule(
 #: The named schedules.
 _NAMED = {"full": FULL, "quick": QUICK}
 
+#: Constraint of a ``schedule`` parameter: a named schedule or a Schedule.
+SCHEDULE_CONSTRAINT = [StrOptions(set(_NAMED)), Schedule]
 
-@validate_params(
-    {"schedule": [StrOptions(set(_NAMED)), Schedule]},
-    prefer_skip_nested_validation=True,
-)
+
+@validate_params({"schedule": SCHEDULE_CONSTRAINT}, prefer_skip_nested_validation=True)
 def get_schedule(schedule):
     """A :class:`Schedule` from its name or a Schedule, checked.
 
