@@ -4,7 +4,8 @@ The full protocol (``python -m skcath reproduce``) pretrains every learned
 method on the other catheters and fine-tunes it once per held-out setting,
 so its cost is ``pretrain epochs x (4 catheters)`` plus ``fine-tune epochs x
 (64 folds)`` per method and seed. This script compares schedules on C1 only,
-for PDL+GRU with one seed, exactly as the protocol trains it:
+for one learned method (PDL+GRU by default) with one seed, exactly as the
+protocol trains it:
 
 1. pretrain on C2-C4 for ``E_p`` epochs (learning rate 1e-2, cosine);
    applied to C1 as is, this model gives the catheter-held-out (LOCO) error;
@@ -24,15 +25,16 @@ Usage::
     python benchmarks/select_schedule.py --grid 30:2:3e-3 20:8:3e-3 --n-jobs 2
     python benchmarks/select_schedule.py --grid 30:2:3e-3:64 30:2:3e-3:32 \
         --sweep-stride 20 --sweep-pooling subsample          # the earlier context input
+    python benchmarks/select_schedule.py --method "PDL+GRU (no context)"
 
 Each grid entry is ``PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR`` with an
 optional ``:FINETUNE_BATCH_SIZE`` (default 64; pretraining always uses 64).
 ``--sweep-stride`` and ``--sweep-pooling`` set how the sweep is shortened
-for the context encoder in both stages; ``--param KEY=VALUE`` (repeatable)
-sets any other :class:`~skcath.residuals.GRUResidual` parameter in both
-stages (``--param module__hidden_size=64``, ``--param use_context=False``),
-and ``--pretrain-batch-size`` the pretraining's batch size. Nothing here
-looks at C2-C4's test errors.
+for the context encoder in both stages; ``--method`` the learned method
+(:data:`skcath.protocol.VARIANTS`: its learner and inputs);
+``--param KEY=VALUE`` (repeatable) sets any other learner parameter in both
+stages (``--param module__hidden_size=64``), and ``--pretrain-batch-size``
+the pretraining's batch size. Nothing here looks at C2-C4's test errors.
 """
 
 from __future__ import annotations
@@ -48,11 +50,11 @@ import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.frozen import FrozenEstimator
 
-from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
+from skcath.backbones import BACKBONE_COLUMNS
 from skcath.datasets import make_benchmark
 from skcath.metrics import mean_per_run_rmse
 from skcath.model_selection import LeaveOneSettingOut
-from skcath.residuals import GRUResidual
+from skcath.protocol import PROPOSED_METHOD, VARIANTS, learner_input, make_learner
 
 #: The schedules compared by default (pretrain epochs, fine-tune epochs, fine-tune lr).
 DEFAULT_GRID = (
@@ -77,6 +79,9 @@ def _parse(entry):
 #: Learner parameters that the schedule itself sets.
 _SCHEDULE_KEYS = {"max_epochs", "lr", "batch_size", "pretrained", "random_state", "n_threads"}
 
+#: Learner inputs that the method sets (--method).
+_METHOD_KEYS = {"use_torque", "use_context"}
+
 
 def _param(entry):
     key, sep, value = entry.partition("=")
@@ -87,26 +92,30 @@ def _param(entry):
             f"--param {key} is set by the schedule (--grid, --pretrain-batch-size, "
             "--seed); give another parameter."
         )
+    if key in _METHOD_KEYS:
+        raise argparse.ArgumentTypeError(
+            f"--param {key} is set by the method; choose it with --method among {list(VARIANTS)}."
+        )
     try:
         return key, ast.literal_eval(value)
     except (ValueError, SyntaxError):
         return key, value  # a plain string such as frame=base
 
 
-def _learner(seed, context, **params):
-    return GRUResidual(random_state=seed, n_threads=1, **context, **params)
+def _learner(method, seed, context, **params):
+    return make_learner(method, random_state=seed, n_threads=1, **context, **params)
 
 
-def _pretrain(epochs, seed, context, batch, X, y):
+def _pretrain(method, epochs, seed, context, batch, X, y):
     start = time.perf_counter()
-    model = _learner(seed, context, max_epochs=epochs, lr=1e-2, batch_size=batch).fit(X, y)
+    model = _learner(method, seed, context, max_epochs=epochs, lr=1e-2, batch_size=batch).fit(X, y)
     return epochs, model, time.perf_counter() - start
 
 
-def _finetune(key, pretrained, seed, context, X_train, y_train, X_test, test):
+def _finetune(method, key, pretrained, seed, context, X_train, y_train, X_test, test):
     _, epochs, lr, batch = key
     start = time.perf_counter()
-    model = _learner(seed, context, max_epochs=epochs, lr=lr, batch_size=batch,
+    model = _learner(method, seed, context, max_epochs=epochs, lr=lr, batch_size=batch,
                      pretrained=FrozenEstimator(pretrained))
     pred = model.fit(X_train, y_train).predict(X_test)
     return key, test, pred, time.perf_counter() - start
@@ -117,6 +126,9 @@ def main(argv=None):
     parser.add_argument("--grid", nargs="+", default=list(DEFAULT_GRID),
                         help="schedules PRETRAIN:FINETUNE:LR (default: %(default)s)")
     parser.add_argument("--catheter", default="C1", help="catheter evaluated (default: C1)")
+    parser.add_argument("--method", choices=list(VARIANTS), default=PROPOSED_METHOD,
+                        metavar="NAME",
+                        help=f"learned method, among {list(VARIANTS)} (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random_state (default: 0)")
     parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
     parser.add_argument("--sweep-stride", type=int, default=40,
@@ -124,7 +136,7 @@ def main(argv=None):
     parser.add_argument("--sweep-pooling", choices=("mean", "subsample"), default="mean",
                         help="how a block of the sweep becomes one step (default: mean)")
     parser.add_argument("--param", type=_param, action="append", default=[],
-                        metavar="KEY=VALUE", help="another GRUResidual parameter, both stages")
+                        metavar="KEY=VALUE", help="another learner parameter, both stages")
     parser.add_argument("--pretrain-batch-size", type=int, default=64,
                         help="batch size of the pretraining (default: 64)")
     args = parser.parse_args(argv)
@@ -136,7 +148,7 @@ def main(argv=None):
     X, y = data.X.reset_index(drop=True), np.asarray(data.y)
     if args.catheter not in set(X["catheter"].astype(str)):
         raise SystemExit(f"--catheter {args.catheter!r} is not in the benchmark.")
-    Xb = PDLBackbone(n_jobs=args.n_jobs).fit(X).transform(X)
+    Xb = learner_input(X, n_jobs=args.n_jobs)
     held = (X["catheter"].astype(str) == args.catheter).to_numpy()
     X_other, y_other = Xb[~held], y[~held]
     Xc, yc = Xb[held].reset_index(drop=True), y[held]
@@ -148,13 +160,13 @@ def main(argv=None):
     pretrained = {
         epochs: (model, seconds)
         for epochs, model, seconds in parallel(
-            delayed(_pretrain)(epochs, args.seed, context, args.pretrain_batch_size,
-                                 X_other, y_other) for epochs in pre_epochs
+            delayed(_pretrain)(args.method, epochs, args.seed, context, args.pretrain_batch_size,
+                               X_other, y_other) for epochs in pre_epochs
         )
     }
     print(f"fine-tuning {len(grid)} x {len(folds)} models ...", file=sys.stderr)
     tasks = (
-        delayed(_finetune)(key, pretrained[key[0]][0], args.seed, context,
+        delayed(_finetune)(args.method, key, pretrained[key[0]][0], args.seed, context,
                            Xc.iloc[train], yc[train], Xc.iloc[test], test)
         for key in grid for train, test in folds
     )
@@ -184,7 +196,7 @@ def main(argv=None):
             "fine-tune fold (s, median)": float(np.median(seconds[key])),
         })
     table = pd.DataFrame(rows)
-    print(f"catheter {args.catheter}, PDL+GRU, seed {args.seed}, pretraining batch "
+    print(f"catheter {args.catheter}, {args.method}, seed {args.seed}, pretraining batch "
           f"{args.pretrain_batch_size}, learner {context}; PDL {pdl:.3f} mm")
     print(table.to_markdown(index=False, floatfmt=".3f"))
     return table

@@ -665,10 +665,42 @@ def paired_reduction(
         or not 0.0 < confidence < 1.0
     ):
         raise ValueError(f"confidence must be a number strictly between 0 and 1; got {confidence!r}.")
+    base, cand, codes = _paired_runs(baseline, candidate, clusters)
+    n_clusters = int(codes.max()) + 1 if codes.size else 0
+    if n_clusters < 2:
+        raise ValueError(
+            f"a cluster bootstrap needs runs in at least 2 clusters; got {base.size} "
+            f"run(s) with finite errors in {n_clusters} cluster(s)."
+        )
+
+    diff = base - cand
+    reduction = float(diff.mean())
+    mean_base = float(base.mean())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        reduction_pct = float(np.float64(100.0) * reduction / mean_base)
+    stats = _cluster_bootstrap(diff, codes, n_clusters, n_bootstrap, check_random_state(random_state))
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(stats, [tail, 1.0 - tail])
+    return Bunch(
+        reduction_mm=reduction,
+        reduction_pct=reduction_pct,
+        ci_low_mm=float(low),
+        ci_high_mm=float(high),
+        fraction_improved=float(np.mean(cand < base)),
+        n_runs=int(base.size),
+        n_clusters=n_clusters,
+    )
+
+
+def _paired_runs(baseline, candidate, clusters):
+    """Per-run errors of both methods and cluster codes (0, 1, ...) of the runs where both are finite.
+
+    Series are matched by index label (see :func:`paired_reduction`), other
+    inputs by position.
+    """
     for name, value in (("baseline", baseline), ("candidate", candidate), ("clusters", clusters)):
         if isinstance(value, pd.DataFrame):
             raise TypeError(f"{name} must be 1-D (one value per run); got a DataFrame.")
-
     index = None
     if isinstance(baseline, pd.Series):
         _check_unique_index(baseline, "baseline")
@@ -683,6 +715,20 @@ def paired_reduction(
 
     base = _real_vector(baseline, "baseline", allow_nan=True)
     cand = _real_vector(candidate, "candidate", allow_nan=True)
+    labels = _cluster_labels(clusters)
+    if not base.size == cand.size == labels.size:
+        raise ValueError(
+            "baseline, candidate and clusters must have one entry per run; got "
+            f"lengths {base.size}, {cand.size} and {labels.size}."
+        )
+    codes = _cluster_codes(labels)
+    used = np.isfinite(base) & np.isfinite(cand)
+    codes, _ = pd.factorize(codes[used], sort=False)
+    return base[used], cand[used], np.asarray(codes, dtype=np.intp)
+
+
+def _cluster_labels(clusters):
+    """The cluster labels as a 1-D object array."""
     if isinstance(clusters, pd.Series):
         labels = clusters.to_numpy(dtype=object)
     else:
@@ -691,11 +737,11 @@ def paired_reduction(
             labels = labels.reshape(1)
     if labels.ndim != 1:
         raise ValueError(f"clusters must be 1-D (one label per run); got shape {labels.shape}.")
-    if not base.size == cand.size == labels.size:
-        raise ValueError(
-            "baseline, candidate and clusters must have one entry per run; got "
-            f"lengths {base.size}, {cand.size} and {labels.size}."
-        )
+    return labels
+
+
+def _cluster_codes(labels):
+    """Code of every run's cluster label, in order of first appearance; raise on a missing label."""
     try:
         codes, _ = pd.factorize(labels, sort=False, use_na_sentinel=True)
     except TypeError as exc:
@@ -706,41 +752,21 @@ def paired_reduction(
             f"clusters contains {int((codes < 0).sum())} missing label(s) (NaN/None); "
             f"first at position {first}. Every run needs a cluster."
         )
+    return codes
 
-    used = np.isfinite(base) & np.isfinite(cand)
-    base, cand = base[used], cand[used]
-    codes, _ = pd.factorize(codes[used], sort=False)
-    codes = np.asarray(codes, dtype=np.intp)
-    n_clusters = int(codes.max()) + 1 if codes.size else 0
-    if n_clusters < 2:
-        raise ValueError(
-            f"a cluster bootstrap needs runs in at least 2 clusters; got {base.size} "
-            f"run(s) with finite errors in {n_clusters} cluster(s)."
-        )
 
-    diff = base - cand
-    reduction = float(diff.mean())
-    mean_base = float(base.mean())
-    with np.errstate(invalid="ignore", divide="ignore"):
-        reduction_pct = float(np.float64(100.0) * reduction / mean_base)
+def _cluster_bootstrap(diff, codes, n_clusters, n_bootstrap, rng):
+    """Mean difference over the runs of ``n_bootstrap`` resamples of the clusters.
 
+    Each resample draws the clusters with replacement and weights every run
+    of a drawn cluster equally; the draws come in blocks as integer arrays.
+    """
     sums = np.bincount(codes, weights=diff, minlength=n_clusters)
     sizes = np.bincount(codes, minlength=n_clusters).astype(np.float64)
-    rng = check_random_state(random_state)
     stats = np.empty(n_bootstrap)
     block = max(1, (1 << 20) // n_clusters)  # about 8 MB of draws at a time
     for start in range(0, n_bootstrap, block):
         stop = min(start + block, n_bootstrap)
         draws = rng.randint(0, n_clusters, size=(stop - start, n_clusters))
         stats[start:stop] = sums[draws].sum(axis=1) / sizes[draws].sum(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(stats, [tail, 1.0 - tail])
-    return Bunch(
-        reduction_mm=reduction,
-        reduction_pct=reduction_pct,
-        ci_low_mm=float(low),
-        ci_high_mm=float(high),
-        fraction_improved=float(np.mean(cand < base)),
-        n_runs=int(base.size),
-        n_clusters=n_clusters,
-    )
+    return stats

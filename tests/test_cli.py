@@ -392,3 +392,31 @@ def test_reproduce_single_catheter_is_a_usage_error(reproduce_data, tmp_path, ca
         main(["reproduce", "--data", str(path), "--out", str(tmp_path / "out"), "--no-figures"])
     assert excinfo.value.code == 2
     assert "catheter" in capsys.readouterr().err
+
+
+def _options(command):
+    """The optional arguments of a sub-command, by option string."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    return {action.option_strings[0]: action for action in sub._actions if action.option_strings}
+
+
+@pytest.mark.parametrize(
+    "option",
+    ["--data", "--exclude-settings", "--mechanism", "--data-home", "--out", "--no-figures",
+     "--n-jobs", "--seeds"],
+)
+def test_shared_arguments_are_the_same_in_every_command(option):
+    repro, budget = _options("reproduce"), _options("calibration-budget")
+    fields = ("dest", "default", "type", "nargs", "choices", "help", "metavar")
+    assert [getattr(repro[option], f) for f in fields] == [getattr(budget[option], f) for f in fields]
+    if option in ("--mechanism", "--data-home"):
+        benchmark = _options("benchmark")[option]
+        assert [getattr(benchmark, f) for f in fields] == [getattr(repro[option], f) for f in fields]
+
+
+def test_variants_choices_come_from_the_registry():
+    from skcath.protocol import VARIANTS
+
+    text = _options("reproduce")["--variants"].help
+    assert all(repr(name) in text for name in VARIANTS)

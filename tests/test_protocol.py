@@ -13,17 +13,31 @@ import numpy as np
 import pandas as pd
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
+from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from skcath.metrics import error_cdf, paired_reduction, per_run_rmse
 from skcath.protocol import (
+    BUDGET_METHODS,
+    COMPARISONS,
     FULL,
+    LEARNER_COLUMNS,
+    LOCO_METHOD,
+    MAIN_METHODS,
+    METHODS,
+    PROPOSED_METHOD,
     QUICK,
+    ROLES,
+    TORQUE_CONTEXT,
     VARIANTS,
     Schedule,
+    calibrate_backbones,
     compute_tables,
     format_report,
     get_schedule,
+    make_learner,
+    methods_with_role,
+    protocol_folds,
     run_protocol,
     write_results,
 )
@@ -588,3 +602,122 @@ def test_every_setting_excluded_is_an_error(data):
     keep = X["setting"].astype(str).isin(["S00", "S01"]).to_numpy()
     with pytest.raises(ValueError, match="no setting to test"):
         run_protocol(X[keep], y[keep], schedule=TINY, exclude_settings=["S00", "S01"])
+
+
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda r: compute_tables(r, n_bootstrap=0), "n_bootstrap"),
+        (lambda r: run_protocol(r.X, r.y, schedule=TINY, n_jobs=1.5), "n_jobs"),
+        (lambda r: write_results({}, "out", figures="yes"), "figures"),
+    ],
+)
+def test_bad_parameters_name_the_parameter(call, name, result):
+    with pytest.raises(InvalidParameterError, match=f"'{name}' parameter"):
+        call(result)
+
+
+# ---------------------------------------------------------------------------
+# the method registry
+# ---------------------------------------------------------------------------
+def test_registry_describes_every_method_once():
+    assert list(METHODS) == [
+        "PCC", "PDL", "PDL+GRU", "PDL+MLP", "PDL+GRU (no torque)", "PDL+GRU (no context)",
+        "PDL+GRU (no torque, no context)", "PDL+GRU (LOCO)",
+    ]
+    assert all(name == method.name for name, method in METHODS.items())
+    colours = [method.colour for method in METHODS.values()]
+    assert len(set(colours)) == len(colours)
+    # the learned methods trained within the catheter, with their learner and inputs
+    assert dict(VARIANTS) == {
+        "PDL+GRU": ("gru", True, True),
+        "PDL+MLP": ("mlp", True, True),
+        "PDL+GRU (no torque)": ("gru", False, True),
+        "PDL+GRU (no context)": ("gru", True, False),
+        "PDL+GRU (no torque, no context)": ("gru", False, False),
+    }
+    assert METHODS[LOCO_METHOD].loco and LOCO_METHOD not in VARIANTS
+    assert PROPOSED_METHOD == "PDL+GRU" and FULL.variants == tuple(VARIANTS)
+    # every role lists its methods at distinct positions 0, 1, ...
+    for role in ROLES:
+        positions = sorted(m.roles[role] for m in METHODS.values() if role in m.roles)
+        assert positions == list(range(len(positions))), role
+
+
+def test_tables_and_figures_read_their_methods_from_the_registry():
+    assert MAIN_METHODS == methods_with_role("main") == ("PCC", "PDL", "PDL+GRU")
+    assert methods_with_role("residual_learners") == ("PDL+MLP", "PDL+GRU")
+    assert methods_with_role("loco") == ("PDL", "PDL+GRU", "PDL+GRU (LOCO)")
+    assert methods_with_role("example") == ("PDL+GRU", "PDL")
+    assert BUDGET_METHODS == ("PCC", "PDL", "PDL+GRU")
+    assert dict(TORQUE_CONTEXT) == {
+        ("No", "No"): "PDL+GRU (no torque, no context)",
+        ("Yes", "No"): "PDL+GRU (no context)",
+        ("No", "Yes"): "PDL+GRU (no torque)",
+        ("Yes", "Yes"): "PDL+GRU",
+    }
+    assert dict(COMPARISONS) == {
+        "PCC -> PDL+GRU": ("PCC", "PDL+GRU"),
+        "PDL -> PDL+GRU": ("PDL", "PDL+GRU"),
+        "PDL+MLP -> PDL+GRU": ("PDL+MLP", "PDL+GRU"),
+        "torque (with context)": ("PDL+GRU (no torque)", "PDL+GRU"),
+        "torque (without context)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no context)"),
+        "context (with torque)": ("PDL+GRU (no context)", "PDL+GRU"),
+        "context (without torque)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no torque)"),
+        "catheter held out -> setting held out": ("PDL+GRU (LOCO)", "PDL+GRU"),
+    }
+    from skcath.protocol import _figures
+
+    assert _figures.CONDITIONING_METHODS == (
+        "PDL+GRU", "PDL+GRU (no torque)", "PDL+GRU (no context)", "PDL+GRU (no torque, no context)",
+    )
+    assert _figures.NEW_CATHETER_METHODS == ("PDL+GRU", "PDL+GRU (LOCO)")
+    assert _figures._method_colours(["PDL+MLP", "mine"]) == {"PDL+MLP": "tab:red", "mine": "tab:cyan"}
+    with pytest.raises(InvalidParameterError, match="'role' parameter"):
+        methods_with_role("table_9")
+
+
+@pytest.mark.parametrize("method", list(VARIANTS))
+def test_make_learner_builds_the_method(method):
+    learner, use_torque, use_context = VARIANTS[method]
+    model = make_learner(method, random_state=3, max_epochs=2)
+    assert type(model).__name__ == {"gru": "GRUResidual", "mlp": "MLPResidual"}[learner]
+    assert (model.use_torque, model.use_context) == (use_torque, use_context)
+    assert (model.random_state, model.max_epochs) == (3, 2)
+
+
+def test_make_learner_refuses_what_the_method_fixes():
+    with pytest.raises(ValueError, match=r"sets \['use_context'\] itself"):
+        make_learner("PDL+GRU", use_context=False)
+    with pytest.raises(InvalidParameterError, match="'method' parameter"):
+        make_learner("PDL")
+
+
+# ---------------------------------------------------------------------------
+# the protocol's steps
+# ---------------------------------------------------------------------------
+def test_protocol_folds(data):
+    X, _ = data
+    info = _run_table(X)
+    folds = protocol_folds(X, TINY, exclude_settings=EXCLUDED)
+    assert [fold.catheter for fold in folds.loco] == ["C1", "C2"]
+    assert len(folds.within) == 2 * TINY.n_setting_folds
+    for fold in folds.loco + folds.within:
+        tested = set(info.loc[sorted(_runs(X.iloc[fold.test])), "catheter"])
+        assert tested == {fold.catheter}
+        assert EXCLUDED not in set(X["setting"].astype(str).iloc[fold.test])
+    only = protocol_folds(X, TINY, exclude_settings=EXCLUDED, catheters=["C2"])
+    assert [fold.catheter for fold in only.loco + only.within] == ["C2"] * 3
+    assert_array_equal(only.loco[0].train, folds.loco[1].train)
+
+
+def test_calibrate_backbones_gives_every_backbone_and_the_learner_input(data):
+    X, _ = data
+    runs = X["run"].isin(X["run"].iloc[[0, -1]]).to_numpy()  # one run of each catheter
+    Xr = X[runs].reset_index(drop=True)
+    X_learner, predictions = calibrate_backbones(Xr)
+    assert list(predictions) == ["PCC", "PDL"]
+    assert tuple(X_learner.columns) == LEARNER_COLUMNS
+    assert_allclose(predictions["PCC"], PCCBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
+    assert_allclose(predictions["PDL"], PDLBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
+    assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions["PDL"])

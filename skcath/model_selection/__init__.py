@@ -7,6 +7,6 @@ and are passed as ``cv=`` to scikit-learn's model-selection tools; see
 ``docs/evaluation.rst``.
 """
 
-from ._split import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
+from ._split import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold, exclusion_set
 
-__all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold"]
+__all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold", "exclusion_set"]

@@ -25,7 +25,7 @@ from sklearn.utils import check_random_state
 from .._format import CATHETER, RUN, SETTING
 from .._validation import _factorize_ids
 
-__all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold"]
+__all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold", "exclusion_set"]
 
 _DOCS = "docs/data_format.rst"
 
@@ -33,8 +33,24 @@ _DOCS = "docs/data_format.rst"
 # ---------------------------------------------------------------------------
 # reading the recordings
 # ---------------------------------------------------------------------------
-def _exclusion_set(exclude_settings):
-    """Setting labels to exclude, as a set of strings."""
+def exclusion_set(exclude_settings):
+    """Setting labels to exclude, as a set of strings.
+
+    Parameters
+    ----------
+    exclude_settings : str, iterable of labels or None
+        The ``exclude_settings`` of a splitter: one setting, several, or
+        none. Labels are compared as strings.
+
+    Returns
+    -------
+    labels : frozenset of str
+
+    Raises
+    ------
+    TypeError
+        If ``exclude_settings`` is neither None, a string nor an iterable.
+    """
     if exclude_settings is None:
         return frozenset()
     if isinstance(exclude_settings, str):
@@ -314,7 +330,7 @@ class LeaveOneSettingOut(_RecordingSplitter):
         self.exclude_settings = exclude_settings
 
     def _plan(self, layout, counting=False):
-        excluded = _exclusion_set(self.exclude_settings)
+        excluded = exclusion_set(self.exclude_settings)
         folds = []
         for c, pairs in enumerate(layout.testable_pairs(excluded)):
             if pairs.size and np.count_nonzero(layout.pair_catheter == c) == 1:
@@ -404,7 +420,7 @@ class SettingGroupKFold(_RecordingSplitter):
 
     def _plan(self, layout, counting=False):
         self._check_params()
-        excluded = _exclusion_set(self.exclude_settings)
+        excluded = exclusion_set(self.exclude_settings)
         # Counting the folds must not draw from a shared RandomState.
         rng = check_random_state(self.random_state) if self.shuffle and not counting else None
         n_splits = int(self.n_splits)
@@ -467,7 +483,7 @@ class LeaveOneCatheterOut(_RecordingSplitter):
         self.exclude_settings = exclude_settings
 
     def _plan(self, layout, counting=False):
-        excluded = _exclusion_set(self.exclude_settings)
+        excluded = exclusion_set(self.exclude_settings)
         if len(layout.catheters) < 2:
             raise ValueError(
                 f"{type(self).__name__} needs at least 2 catheters in X (one to "

@@ -12,25 +12,31 @@ sample, and scores every budget on the unchanged motion rows;
 
 from __future__ import annotations
 
+import os
 import time
-from numbers import Integral
+from numbers import Integral, Real
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import delayed
 from sklearn.utils import Bunch
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .. import _format as fmt
 from .._validation import check_recordings
-from ..backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ..metrics import per_run_rmse
-from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
-from ..model_selection._split import _exclusion_set
+from ..model_selection import exclusion_set
 from ..sweep import reduce_sweep
-from ._figures import _METHOD_COLOURS, _new_figure
-from ._protocol import _LEARNER_COLUMNS, _finetune, _pretrain, _run_tasks
-from ._schedule import get_schedule
+from ._figures import _new_figure
+from ._methods import METHODS, methods_with_role
+from ._protocol import (
+    calibrate_backbones,
+    finetune_models,
+    learner_input,
+    pretrain_models,
+    protocol_folds,
+)
+from ._schedule import SCHEDULE_CONSTRAINT, get_schedule
 
 __all__ = [
     "BUDGET_FILES",
@@ -42,10 +48,10 @@ __all__ = [
 ]
 
 #: Methods scored at every budget: the two backbones and the GRU residual on PDL.
-BUDGET_METHODS = ("PCC", "PDL", "PDL+GRU")
+BUDGET_METHODS = methods_with_role("budget")
 
-#: Learned method of the experiment (a key of :data:`~skcath.protocol.VARIANTS`).
-_VARIANT = "PDL+GRU"
+#: Learned method of the experiment, trained on full sweeps.
+(_VARIANT,) = (name for name in BUDGET_METHODS if METHODS[name].learner is not None)
 
 #: File names written by :func:`write_budget_results`.
 BUDGET_FILES = {
@@ -72,10 +78,18 @@ def _check_levels(values, name, low, high=None, why=""):
 
 
 def _budgets(rays, strides, n_rays_swept):
-    """(n_rays, stride) pairs: the full sweep, fewer rays, then sparser samples."""
-    pairs = [(n_rays_swept, 1)]
+    """(n_rays, stride) pairs after checking the arguments: the full sweep, fewer rays, then
+    sparser samples."""
+    if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 3:
+        raise ValueError(f"n_rays_swept must be an integer of at least 3; got {n_rays_swept!r}.")
+    rays = _check_levels(
+        rays, "rays", 3, int(n_rays_swept),
+        f" (the backbones need at least 3 rays; a sweep of n_rays_swept={n_rays_swept} has no more)",
+    )
+    strides = _check_levels(strides, "strides", 1)
+    pairs = [(int(n_rays_swept), 1)]
     pairs += [(n, 1) for n in sorted(rays, reverse=True)]
-    pairs += [(n_rays_swept, s) for s in sorted(strides)]
+    pairs += [(int(n_rays_swept), s) for s in sorted(strides)]
     return list(dict.fromkeys(pairs))
 
 
@@ -97,6 +111,22 @@ def _sweep_size(X, stride):
     return n.astype(int), n * stride * period.reindex(n.index)
 
 
+@validate_params(
+    {
+        "X": "no_validation",
+        "y": ["array-like", None],
+        "rays": "no_validation",
+        "strides": "no_validation",
+        "n_rays_swept": "no_validation",
+        "learned": ["boolean"],
+        "schedule": SCHEDULE_CONSTRAINT,
+        "catheters": "no_validation",
+        "exclude_settings": "no_validation",
+        "n_jobs": [Integral, None],
+        "verbose": ["verbose"],
+    },
+    prefer_skip_nested_validation=False,
+)
 def run_calibration_budget(
     X,
     y,
@@ -179,76 +209,92 @@ def run_calibration_budget(
         cannot be found (the message names the run).
     """
     start = time.perf_counter()
-    if isinstance(n_rays_swept, bool) or not isinstance(n_rays_swept, Integral) or n_rays_swept < 3:
-        raise ValueError(f"n_rays_swept must be an integer of at least 3; got {n_rays_swept!r}.")
-    rays = _check_levels(
-        rays, "rays", 3, int(n_rays_swept),
-        f" (the backbones need at least 3 rays; a sweep of n_rays_swept={n_rays_swept} has no more)",
-    )
-    strides = _check_levels(strides, "strides", 1)
-    budgets = _budgets(rays, strides, int(n_rays_swept))
-    spacing = 360.0 / n_rays_swept
-    exclude = tuple(sorted(_exclusion_set(exclude_settings)))
+    budgets = _budgets(rays, strides, n_rays_swept)
+    exclude = tuple(sorted(exclusion_set(exclude_settings)))
     X, y = check_recordings(X, y)
     if y is None:
         raise ValueError("y (the measured tip positions, mm) is required to score the budgets.")
     X = X.reset_index(drop=True)
     y = np.asarray(y, dtype=float)
+    tested, evaluated = _evaluated_runs(X, catheters, exclude)
+    schedule = _learned_schedule(X, schedule) if learned else None
+
+    X_eval, y_eval = X[evaluated].reset_index(drop=True), y[evaluated]
+    reduced, records, summary = _backbone_budgets(X_eval, y_eval, budgets, n_rays_swept, n_jobs)
+    if learned:
+        records += _learned_records(
+            X, y, budgets, reduced, schedule, exclude, tested, n_jobs, verbose, n_rays_swept,
+        )
+    run_rmse = _run_rmse_table(records, X_eval)
+    return Bunch(
+        summary=_summary_table(summary, run_rmse),
+        run_rmse=run_rmse,
+        schedule=schedule,
+        catheters=tuple(tested),
+        exclude_settings=exclude,
+        elapsed=time.perf_counter() - start,
+    )
+
+
+def _evaluated_runs(X, catheters, exclude):
+    """The catheters evaluated and the mask of their rows outside the excluded settings."""
     catheter_ids = X[fmt.CATHETER].astype(str).to_numpy()
     available = list(pd.unique(catheter_ids))
     if catheters is None:
-        evaluated_catheters = available
+        tested = available
     else:
-        evaluated_catheters = [str(c) for c in ([catheters] if isinstance(catheters, str) else catheters)]
-        unknown = sorted(set(evaluated_catheters) - set(available))
-        if unknown or not evaluated_catheters:
+        tested = [str(c) for c in ([catheters] if isinstance(catheters, str) else catheters)]
+        if not tested or set(tested) - set(available):
             raise ValueError(
                 f"catheters must name catheters of X's 'catheter' column {available}; "
-                f"got {evaluated_catheters!r}."
+                f"got {tested!r}."
             )
-    evaluated = np.isin(catheter_ids, evaluated_catheters) & ~np.isin(
-        X[fmt.SETTING].astype(str).to_numpy(), exclude
-    )
+    evaluated = np.isin(catheter_ids, tested) & ~np.isin(X[fmt.SETTING].astype(str).to_numpy(), exclude)
     if not evaluated.any():
         raise ValueError(
-            f"no run is left to evaluate: catheters {evaluated_catheters} have only the "
+            f"no run is left to evaluate: catheters {tested} have only the "
             f"excluded settings {list(exclude)}."
         )
-    if learned:
-        schedule = get_schedule(schedule)
-        if len(available) < 2:
-            raise ValueError(
-                "PDL+GRU is pretrained on the other catheters, so X needs recordings of at "
-                f"least two catheters in its 'catheter' column; got {available} (or pass "
-                "learned=False)."
-            )
-    else:
-        schedule = None
+    return tested, evaluated
 
-    X_eval, y_eval = X[evaluated].reset_index(drop=True), y[evaluated]
+
+def _learned_schedule(X, schedule):
+    """The schedule of the learned method, after checking that X has catheters to pretrain on."""
+    schedule = get_schedule(schedule)
+    available = list(pd.unique(X[fmt.CATHETER].astype(str)))
+    if len(available) < 2:
+        raise ValueError(
+            f"{_VARIANT} is pretrained on the other catheters, so X needs recordings of at "
+            f"least two catheters in its 'catheter' column; got {available} (or pass "
+            "learned=False)."
+        )
+    return schedule
+
+
+def _backbone_budgets(X_eval, y_eval, budgets, n_rays_swept, n_jobs):
+    """The learner input of every budget, the backbones' per-run RMSE and the sweep sizes.
+
+    Returns the list of (learner input, targets) of every budget, the records
+    (n_rays, stride, method, seed, per-run RMSE) of the backbones, seed -1,
+    and one summary row per budget.
+    """
+    spacing = 360.0 / n_rays_swept
     reduced, records, summary = [], [], []
     for n_rays, stride in budgets:
         X_b, y_b = reduce_sweep(X_eval, y_eval, n_rays=n_rays, stride=stride, n_rays_swept=n_rays_swept)
         X_b = X_b.reset_index(drop=True)
-        kwargs = {"n_rays": n_rays, "ray_spacing_deg": spacing, "n_jobs": n_jobs}
-        Xt = PDLBackbone(**kwargs).fit(X_b).transform(X_b)[list(_LEARNER_COLUMNS)]
-        predictions = {
-            "PCC": PCCBackbone(**kwargs).fit(X_b).predict(X_b),
-            "PDL": Xt[list(BACKBONE_COLUMNS)].to_numpy(),
-        }
+        Xt, predictions = calibrate_backbones(X_b, n_rays=n_rays, ray_spacing_deg=spacing, n_jobs=n_jobs)
         for method, pred in predictions.items():
             records.append((n_rays, stride, method, -1, per_run_rmse(y_b, pred, X_b)))
         samples, seconds = _sweep_size(X_b, stride)
         summary.append({"n_rays": n_rays, "stride": stride, "sweep_samples": float(samples.median()),
                         "sweep_s": float(seconds.median())})
         reduced.append((Xt, y_b))
+    return reduced, records, summary
 
-    if learned:
-        records += _learned_records(
-            X, y, budgets, reduced, schedule, exclude, evaluated_catheters, n_jobs, verbose,
-            n_rays_swept,
-        )
 
+def _run_rmse_table(records, X_eval):
+    """One row per budget, method, seed and evaluated run."""
     run_info = X_eval[[fmt.RUN, fmt.CATHETER, fmt.SETTING]].astype(str).drop_duplicates(fmt.RUN)
     run_info = run_info.set_index(fmt.RUN)
     frames = []
@@ -256,82 +302,55 @@ def run_calibration_budget(
         frame = per_run.rename("rmse_mm").rename_axis(fmt.RUN).reset_index()
         frame[fmt.RUN] = frame[fmt.RUN].astype(str)
         frame = frame.join(run_info, on=fmt.RUN)
-        frame.insert(0, "seed", seed)
-        frame.insert(0, "method", method)
-        frame.insert(0, "stride", stride)
-        frame.insert(0, "n_rays", n_rays)
-        frames.append(frame)
-    run_rmse = pd.concat(frames, ignore_index=True)[
+        frames.append(frame.assign(n_rays=n_rays, stride=stride, method=method, seed=seed))
+    return pd.concat(frames, ignore_index=True)[
         ["n_rays", "stride", "method", "seed", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]
     ]
+
+
+def _summary_table(summary, run_rmse):
+    """Sweep size and mean per-run RMSE of every method (averaged over seeds) per budget."""
     means = (
         run_rmse.groupby(["n_rays", "stride", "method", "seed"], sort=False)["rmse_mm"].mean()
         .groupby(["n_rays", "stride", "method"], sort=False).mean()
         .unstack("method")
     )
     table = pd.DataFrame(summary).set_index(["n_rays", "stride"])
-    table = table.join(means[[m for m in BUDGET_METHODS if m in means.columns]]).reset_index()
-    return Bunch(
-        summary=table,
-        run_rmse=run_rmse,
-        schedule=schedule,
-        catheters=tuple(evaluated_catheters),
-        exclude_settings=exclude,
-        elapsed=time.perf_counter() - start,
-    )
+    return table.join(means[[m for m in BUDGET_METHODS if m in means.columns]]).reset_index()
 
 
 def _learned_records(
     X, y, budgets, reduced, schedule, exclude, catheters, n_jobs, verbose, n_rays_swept
 ):
-    """Per-run RMSE of PDL+GRU trained on full sweeps, for every budget and seed."""
-    full = PDLBackbone(n_rays=n_rays_swept, n_jobs=n_jobs)
-    Xb = full.fit(X).transform(X)[list(_LEARNER_COLUMNS)]
-    loco = LeaveOneCatheterOut(exclude_settings=exclude)
-    if schedule.n_setting_folds is None:
-        within = LeaveOneSettingOut(exclude_settings=exclude)
-    else:
-        within = SettingGroupKFold(n_splits=schedule.n_setting_folds, exclude_settings=exclude)
-    catheter_ids = X[fmt.CATHETER].astype(str).to_numpy()
+    """Per-run RMSE of the learned method trained on full sweeps, for every budget and seed.
+
+    The models are pretrained and fine-tuned as in the protocol
+    (:func:`pretrain_models`, :func:`finetune_models`); each fine-tuned model
+    predicts its fold's test runs once per budget, from the reduced sweeps.
+    """
+    Xb = learner_input(X, n_rays=n_rays_swept, n_jobs=n_jobs)
+    folds = protocol_folds(X, schedule, exclude_settings=exclude, catheters=catheters)
+    stage = dict(variants=(_VARIANT,), n_jobs=n_jobs, verbose=verbose)
+    pretrained = pretrain_models(Xb, y, folds.loco, schedule, **stage)
+
     run_ids = X[fmt.RUN].astype(str).to_numpy()
-    pre_params = {**schedule.model_params, **schedule.pretrain_params}
-    fine_params = {**schedule.model_params, **schedule.finetune_params}
-
-    def pretrain_tasks():
-        for train, test in loco.split(X):
-            catheter = catheter_ids[test[0]]
-            if catheter in catheters:
-                for seed in schedule.seeds:
-                    key = {"variant": _VARIANT, "seed": seed, "catheter": catheter}
-                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], [])
-
-    n_pre = len(catheters) * len(schedule.seeds)
-    pretrained = {
-        (key["catheter"], key["seed"]): model
-        for key, model, _, _ in _run_tasks(pretrain_tasks(), n_pre, n_jobs, "pretraining", verbose)
-    }
-
-    folds = [(train, test) for train, test in within.split(X) if catheter_ids[test[0]] in catheters]
     budget_runs = [Xt[fmt.RUN].astype(str).to_numpy() for Xt, _ in reduced]
 
-    def finetune_tasks():
-        for fold, (train, test) in enumerate(folds):
-            catheter = catheter_ids[test[0]]
-            test_runs = np.unique(run_ids[test])
-            X_tests = [Xt[np.isin(runs, test_runs)] for (Xt, _), runs in zip(reduced, budget_runs)]
-            for seed in schedule.seeds:
-                key = {"variant": _VARIANT, "seed": seed, "fold": fold, "test_runs": test_runs}
-                yield delayed(_finetune)(
-                    key, fine_params, pretrained[catheter, seed], Xb.iloc[train], y[train], X_tests
-                )
+    def budget_rows(fold):
+        """Rows of every budget's frame that belong to the fold's test runs."""
+        test_runs = np.unique(run_ids[fold.test])
+        return [np.isin(runs, test_runs) for runs in budget_runs]
 
+    def tests(fold):
+        return [Xt[rows] for (Xt, _), rows in zip(reduced, budget_rows(fold))]
+
+    finetuned = finetune_models(Xb, y, folds.within, schedule, pretrained.models, tests=tests, **stage)
     predictions = {
         seed: [np.full((len(Xt), 3), np.nan) for Xt, _ in reduced] for seed in schedule.seeds
     }
-    n_fine = len(folds) * len(schedule.seeds)
-    for key, _, preds, _ in _run_tasks(finetune_tasks(), n_fine, n_jobs, "fine-tuning", verbose):
-        for b, pred in enumerate(preds):
-            predictions[key["seed"]][b][np.isin(budget_runs[b], key["test_runs"])] = pred
+    for (_, seed, number), preds in finetuned.predictions.items():
+        for b, (rows, pred) in enumerate(zip(budget_rows(folds.within[number]), preds)):
+            predictions[seed][b][rows] = pred
     records = []
     for seed in schedule.seeds:
         for (n_rays, stride), (Xt, y_b), pred in zip(budgets, reduced, predictions[seed]):
@@ -341,6 +360,7 @@ def _learned_records(
     return records
 
 
+@validate_params({"result": [Bunch]}, prefer_skip_nested_validation=True)
 def format_budget_report(result):
     """The budget table as text, with a header naming the runs and the schedule.
 
@@ -359,7 +379,7 @@ def format_budget_report(result):
                                   "sweep_s": "sweep (s)"})
     n_runs = result.run_rmse[fmt.RUN].nunique()
     schedule = "backbones only" if result.schedule is None else (
-        f"PDL+GRU schedule {result.schedule.name!r}, seeds {list(result.schedule.seeds)}"
+        f"{_VARIANT} schedule {result.schedule.name!r}, seeds {list(result.schedule.seeds)}"
     )
     lines = [
         "Calibration budget: mean per-run RMSE (mm) on the motion rows",
@@ -380,6 +400,7 @@ def format_budget_report(result):
     return "\n".join(lines)
 
 
+@validate_params({"summary": [pd.DataFrame]}, prefer_skip_nested_validation=True)
 def plot_calibration_budget(summary):
     """Error against the number of rays and against the sweep stride.
 
@@ -408,7 +429,7 @@ def plot_calibration_budget(summary):
     figure = _new_figure((9.0, 3.8))
     left, right = figure.subplots(1, 2, sharey=True)
     for method in methods:
-        style = {"color": _METHOD_COLOURS.get(method), "marker": "o", "label": method}
+        style = {"color": METHODS[method].colour, "marker": "o", "label": method}
         left.plot(by_rays["n_rays"], by_rays[method], **style)
         right.plot(by_stride["stride"], by_stride[method], **style)
     left.set_xticks(by_rays["n_rays"].tolist())
@@ -428,6 +449,15 @@ def plot_calibration_budget(summary):
     return figure
 
 
+@validate_params(
+    {
+        "result": [Bunch],
+        "out_dir": [str, os.PathLike],
+        "figure": ["boolean"],
+        "dpi": [Interval(Real, 0, None, closed="neither")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def write_budget_results(result, out_dir, *, figure=True, dpi=150):
     """Write the budget tables as CSV and, optionally, the figure as PNG.
 

@@ -13,25 +13,29 @@ the global state of :mod:`matplotlib.pyplot`, so that drawing works headless
 and from several threads at once. The input tables are never modified.
 
 Methods are identified by their label in the ``method`` column (``"PCC"``,
-``"PDL"``, ``"PDL+GRU"``, ...). Each method keeps the same colour in every
-figure.
+``"PDL"``, ``"PDL+GRU"``, ...). Each method of the protocol keeps the colour
+that :data:`~skcath.protocol.METHODS` gives it in every figure.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections.abc import Iterable, Mapping
+from numbers import Integral, Real
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from pandas.api import types as pdt
+from sklearn.utils._param_validation import Interval, validate_params
+
+from ._methods import LOCO_VARIANT, MAIN_METHODS, METHODS, PROPOSED_METHOD, methods_with_role
 
 __all__ = [
     "CONDITIONING_METHODS",
     "FIGURE_FILES",
-    "MAIN_METHODS",
     "NEW_CATHETER_METHODS",
     "RESIDUAL_METHODS",
     "TABLE_COLUMNS",
@@ -45,19 +49,12 @@ __all__ = [
     "write_figures",
 ]
 
-#: The three methods compared in the main figures.
-MAIN_METHODS = ("PCC", "PDL", "PDL+GRU")
 #: The two residual learners on top of the PDL backbone.
-RESIDUAL_METHODS = ("PDL+MLP", "PDL+GRU")
+RESIDUAL_METHODS = methods_with_role("residual_learners")
 #: Within-catheter training against training on the other catheters only.
-NEW_CATHETER_METHODS = ("PDL+GRU", "PDL+GRU (LOCO)")
+NEW_CATHETER_METHODS = methods_with_role("new_catheter")
 #: The GRU residual with and without its torque and context inputs.
-CONDITIONING_METHODS = (
-    "PDL+GRU",
-    "PDL+GRU (no torque)",
-    "PDL+GRU (no context)",
-    "PDL+GRU (no torque, no context)",
-)
+CONDITIONING_METHODS = methods_with_role("conditioning")
 
 #: Columns of each summary table, keyed by the table name used by
 #: :func:`write_figures`.
@@ -96,16 +93,6 @@ POOLED = "pooled"
 
 _FIGSIZE = (8.0, 4.5)
 _MARK_LABEL_FORMAT = "{:.1f}%"
-_METHOD_COLOURS = {
-    "PCC": "tab:blue",
-    "PDL": "tab:orange",
-    "PDL+GRU": "tab:green",
-    "PDL+MLP": "tab:red",
-    "PDL+GRU (no torque)": "tab:purple",
-    "PDL+GRU (no context)": "tab:brown",
-    "PDL+GRU (no torque, no context)": "tab:pink",
-    "PDL+GRU (LOCO)": "tab:olive",
-}
 _SPARE_COLOURS = ("tab:cyan", "tab:gray", "#1b3a6b", "#8c5a00", "#006d5b", "#7a1f5c")
 _COMPARISON_COLOURS = (
     "tab:green",
@@ -118,10 +105,29 @@ _COMPARISON_COLOURS = (
     "tab:orange",
 )
 _MAX_SPARSE_BOXES = 8
-_BOX_TITLES = {
-    "residual_learners.png": "Residual learners on the PDL backbone: MLP and GRU",
-    "new_catheter.png": "PDL+GRU trained on the test catheter and on the other catheters (LOCO)",
-    "conditioning.png": "PDL+GRU with and without its torque and context inputs",
+#: Box-plot figures written by :func:`write_figures`: file name -> (methods,
+#: how many of them the table must hold, title). The conditioning figure
+#: counts only the ablated variants.
+_BOX_FIGURES = {
+    "rmse_boxes.png": (MAIN_METHODS, 1, None),
+    "residual_learners.png": (
+        RESIDUAL_METHODS,
+        len(RESIDUAL_METHODS),
+        "Residual learners on the {backbone} backbone: {learners}".format(
+            backbone=METHODS[RESIDUAL_METHODS[0]].backbone.upper(),
+            learners=" and ".join(METHODS[m].learner.upper() for m in RESIDUAL_METHODS),
+        ),
+    ),
+    "new_catheter.png": (
+        NEW_CATHETER_METHODS,
+        len(NEW_CATHETER_METHODS),
+        f"{LOCO_VARIANT} trained on the test catheter and on the other catheters (LOCO)",
+    ),
+    "conditioning.png": (
+        CONDITIONING_METHODS,
+        1,
+        f"{PROPOSED_METHOD} with and without its torque and context inputs",
+    ),
 }
 
 
@@ -186,12 +192,9 @@ def _check_table(table, name, *, numeric=(), finite=(), no_inf=()):
             f"The {name!r} table must be a pandas DataFrame with the columns {listed}; "
             f"got {type(table).__name__}."
         )
-    missing = [column for column in expected if column not in table.columns]
+    missing = ", ".join(repr(column) for column in expected if column not in table.columns)
     if missing:
-        raise ValueError(
-            f"The {name!r} table lacks the column(s) {', '.join(map(repr, missing))}; "
-            f"expected the columns {listed}."
-        )
+        raise ValueError(f"The {name!r} table lacks the column(s) {missing}; expected the columns {listed}.")
     if len(table) == 0:
         raise ValueError(f"The {name!r} table is empty; expected at least one row.")
     for column in (*numeric, *finite, *no_inf):
@@ -250,7 +253,7 @@ def _method_colours(methods):
     colours = {}
     spare = iter(_SPARE_COLOURS * (1 + len(methods) // len(_SPARE_COLOURS)))
     for method in methods:
-        colours[method] = _METHOD_COLOURS.get(method) or next(spare)
+        colours[method] = METHODS[method].colour if method in METHODS else next(spare)
     return colours
 
 
@@ -471,6 +474,15 @@ def _check_cdf(cdf):
         )
 
 
+@validate_params(
+    {
+        "cdf": "no_validation",
+        "methods": "no_validation",
+        "mark_mm": [Interval(Real, 0, None, closed="left"), None],
+        "title": [str, None],
+    },
+    prefer_skip_nested_validation=True,
+)
 def plot_error_cdf(cdf, methods=MAIN_METHODS, mark_mm=5.0, *, title=None):
     """Cumulative distribution of the tip error, one curve per method.
 
@@ -508,15 +520,6 @@ def plot_error_cdf(cdf, methods=MAIN_METHODS, mark_mm=5.0, *, title=None):
     """
     _check_cdf(cdf)
     if mark_mm is not None:
-        if (
-            isinstance(mark_mm, bool)
-            or not isinstance(mark_mm, (int, float, np.number))
-            or not np.isfinite(mark_mm)
-            or mark_mm < 0
-        ):
-            raise ValueError(
-                f"mark_mm must be a finite error >= 0 in mm, or None; got {mark_mm!r}."
-            )
         mark_mm = float(mark_mm)
     present = _select(cdf, "method", methods, "cdf", "methods")
     curves = _cdf_curves(cdf, present)
@@ -565,13 +568,18 @@ def _check_bins(table, name):
         )
 
 
-def _plot_binned(table, name, methods, *, statistic, box_every, x_label, unit, title):
+#: How each binned table is drawn: statistic over runs, x-axis label, bin unit, default title.
+_BINNED = {
+    "magnitude_bins": ("median", "Motor-input magnitude (deg)", "deg", "Tip error by motor-input magnitude"),
+    "time_bins": ("mean", "Motion time (s)", "s", "Tip error over the motion"),
+}
+
+
+def _plot_binned(table, name, methods, *, box_every, title):
     """Line of a per-bin statistic over runs plus sparse between-run box plots."""
+    statistic, x_label, unit, default_title = _BINNED[name]
+    title = title or default_title
     _check_bins(table, name)
-    if box_every is not None and (
-        isinstance(box_every, bool) or not isinstance(box_every, (int, np.integer)) or box_every < 1
-    ):
-        raise ValueError(f"box_every must be a positive integer or None; got {box_every!r}.")
     present = _select(table, "method", methods, name, "methods")
     rows = table.loc[table["method"].isin(present), ["method", "bin_left", "bin_right", "rmse_mm"]]
     rows = rows[np.isfinite(rows["rmse_mm"].to_numpy(dtype=float))]
@@ -648,6 +656,17 @@ _BINNED_RETURNS_DOC = """Returns
         If matplotlib is not installed."""
 
 
+#: Parameters of plot_error_by_magnitude and plot_error_over_time; the tables
+#: and methods are checked by _plot_binned, with messages naming the column.
+_BINNED_PARAMETERS = {
+    "magnitude_bins": "no_validation",
+    "time_bins": "no_validation",
+    "methods": "no_validation",
+    "box_every": [Interval(Integral, 1, None, closed="left"), None],
+    "title": [str, None],
+}
+
+
 def _binned_doc(func):
     """Decorator: fill the ``{binned_returns}`` placeholder of ``func``'s docstring."""
     if func.__doc__:  # None under python -OO
@@ -655,6 +674,7 @@ def _binned_doc(func):
     return func
 
 
+@validate_params(_BINNED_PARAMETERS, prefer_skip_nested_validation=True)
 @_binned_doc
 def plot_error_by_magnitude(magnitude_bins, methods=MAIN_METHODS, *, box_every=None, title=None):
     """Tip error against the magnitude of the motor input.
@@ -681,18 +701,10 @@ def plot_error_by_magnitude(magnitude_bins, methods=MAIN_METHODS, *, box_every=N
 
     {binned_returns}
     """
-    return _plot_binned(
-        magnitude_bins,
-        "magnitude_bins",
-        methods,
-        statistic="median",
-        box_every=box_every,
-        x_label="Motor-input magnitude (deg)",
-        unit="deg",
-        title=title or "Tip error by motor-input magnitude",
-    )
+    return _plot_binned(magnitude_bins, "magnitude_bins", methods, box_every=box_every, title=title)
 
 
+@validate_params(_BINNED_PARAMETERS, prefer_skip_nested_validation=True)
 @_binned_doc
 def plot_error_over_time(time_bins, methods=MAIN_METHODS, *, box_every=None, title=None):
     """Tip error over the motion time of the runs.
@@ -720,16 +732,7 @@ def plot_error_over_time(time_bins, methods=MAIN_METHODS, *, box_every=None, tit
 
     {binned_returns}
     """
-    return _plot_binned(
-        time_bins,
-        "time_bins",
-        methods,
-        statistic="mean",
-        box_every=box_every,
-        x_label="Motion time (s)",
-        unit="s",
-        title=title or "Tip error over the motion",
-    )
+    return _plot_binned(time_bins, "time_bins", methods, box_every=box_every, title=title)
 
 
 # ---------------------------------------------------------------------------
@@ -874,6 +877,47 @@ def plot_paired_reductions(paired, comparisons=None, *, title=None):
     ImportError
         If matplotlib is not installed.
     """
+    _check_paired(paired)
+    if comparisons is None:
+        present = list(pd.unique(paired["comparison"]))
+    else:
+        present = _select(paired, "comparison", comparisons, "paired", "comparisons")
+    layout, groups = _forest_layout(paired, present)
+
+    figure = _new_figure(figsize=(8.0, max(4.5, 1.4 + 0.22 * len(layout))))
+    ax = figure.add_subplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.transforms import blended_transform_factory
+
+    side = blended_transform_factory(ax.transAxes, ax.transData)
+    for y_row, row, colour, pooled in layout:
+        _draw_forest_row(ax, side, y_row, row, colour, pooled)
+    ax.text(1.02, 1.0, "reduction | runs\nimproved", transform=ax.transAxes, va="bottom",
+            ha="left", fontsize="x-small")
+    ax.axvline(0.0, color="0.25", linewidth=1.0, linestyle="--")
+    for top, _, _ in groups[1:]:
+        ax.axhline(top + 0.8, color="0.8", linewidth=0.8)
+    ax.set_yticks([entry[0] for entry in layout])
+    labels = ax.set_yticklabels([str(entry[1]["scope"]) for entry in layout], fontsize="small")
+    for label, entry in zip(labels, layout):
+        if entry[3]:
+            label.set_fontweight("bold")
+    ax.set_ylim(min(entry[0] for entry in layout) - 0.7, 0.7)
+    ax.set_xlabel("Reduction of the per-run tip RMSE (mm; > 0: second method better)")
+    ax.grid(axis="x", alpha=0.3)
+    handles = [
+        Line2D([], [], color=colour, marker="D", markeredgecolor="black", linewidth=2.5)
+        for _, _, colour in groups
+    ]
+    figure.suptitle(
+        title or "Paired reductions of the per-run tip RMSE (mean and confidence interval)"
+    )
+    _figure_legend(figure, handles, [comparison for _, comparison, _ in groups])
+    return figure
+
+
+def _check_paired(paired):
+    """Check the columns, intervals, fractions and keys of the 'paired' table."""
     _check_table(
         paired,
         "paired",
@@ -898,109 +942,85 @@ def plot_paired_reductions(paired, comparisons=None, *, title=None):
             "The 'paired' table must hold one row per (comparison, scope); "
             f"found {int(duplicated.sum())} rows sharing a key."
         )
-    if comparisons is None:
-        present = list(pd.unique(paired["comparison"]))
-    else:
-        present = _select(paired, "comparison", comparisons, "paired", "comparisons")
 
-    layout = []  # (y, row, colour, is_pooled)
+
+def _forest_layout(paired, comparisons):
+    """Rows of the forest plot, top to bottom, and the top of every comparison's group.
+
+    Returns a list of (y, table row, colour, is_pooled) and a list of (y,
+    comparison, colour): within a comparison, the catheters in natural order
+    and the pooled row last; a gap between comparisons.
+    """
+    layout, groups = [], []
     y = 0.0
-    group_tops = []
-    for number, comparison in enumerate(present):
+    for number, comparison in enumerate(comparisons):
         rows = paired[paired["comparison"] == comparison]
         scopes = sorted((s for s in pd.unique(rows["scope"]) if s != POOLED), key=_natural_key)
         if (rows["scope"] == POOLED).any():
             scopes.append(POOLED)
         colour = _COMPARISON_COLOURS[number % len(_COMPARISON_COLOURS)]
-        group_tops.append((y, comparison, colour))
+        groups.append((y, comparison, colour))
         for scope in scopes:
-            row = rows[rows["scope"] == scope].iloc[0]
-            layout.append((y, row, colour, scope == POOLED))
+            layout.append((y, rows[rows["scope"] == scope].iloc[0], colour, scope == POOLED))
             y -= 1.0
         y -= 0.6
+    return layout, groups
 
-    n_rows = len(layout)
-    figure = _new_figure(figsize=(8.0, max(4.5, 1.4 + 0.22 * n_rows)))
-    ax = figure.add_subplot()
-    from matplotlib.lines import Line2D
-    from matplotlib.transforms import blended_transform_factory
 
-    side = blended_transform_factory(ax.transAxes, ax.transData)
-    for y_row, row, colour, pooled in layout:
-        if np.isfinite(row["ci_low_mm"]) and np.isfinite(row["ci_high_mm"]):
-            ax.hlines(
-                y_row,
-                row["ci_low_mm"],
-                row["ci_high_mm"],
-                color=colour,
-                linewidth=3.0 if pooled else 1.4,
-            )
-        ax.plot(
-            [row["reduction_mm"]],
-            [y_row],
-            marker="D" if pooled else "o",
-            markersize=8.0 if pooled else 5.0,
-            color=colour,
-            markeredgecolor="black" if pooled else colour,
-            linestyle="none",
-            zorder=3,
-        )
-        pct = row["reduction_pct"]
-        frac = row["fraction_improved"]
-        note = (
-            f"{'n/a' if not np.isfinite(pct) else format(pct, '.0f') + '%'} | "
-            f"{'n/a' if not np.isfinite(frac) else format(100 * frac, '.0f') + '%'}"
-        )
-        ax.text(
-            1.02,
-            y_row,
-            note,
-            transform=side,
-            va="center",
-            ha="left",
-            fontsize="x-small",
-            fontweight="bold" if pooled else "normal",
-        )
-    ax.text(
-        1.02,
-        1.0,
-        "reduction | runs\nimproved",
-        transform=ax.transAxes,
-        va="bottom",
-        ha="left",
-        fontsize="x-small",
+def _percent(value, scale=1.0):
+    """``value`` (times ``scale``) as a whole percentage, or n/a when not finite."""
+    return format(scale * value, ".0f") + "%" if np.isfinite(value) else "n/a"
+
+
+def _draw_forest_row(ax, side, y, row, colour, pooled):
+    """One row of the forest plot: interval bar, mean marker and the note on the right."""
+    if np.isfinite(row["ci_low_mm"]) and np.isfinite(row["ci_high_mm"]):
+        ax.hlines(y, row["ci_low_mm"], row["ci_high_mm"], color=colour,
+                  linewidth=3.0 if pooled else 1.4)
+    ax.plot(
+        [row["reduction_mm"]],
+        [y],
+        marker="D" if pooled else "o",
+        markersize=8.0 if pooled else 5.0,
+        color=colour,
+        markeredgecolor="black" if pooled else colour,
+        linestyle="none",
+        zorder=3,
     )
-    ax.axvline(0.0, color="0.25", linewidth=1.0, linestyle="--")
-    for top, _, _ in group_tops[1:]:
-        ax.axhline(top + 0.8, color="0.8", linewidth=0.8)
-    ax.set_yticks([entry[0] for entry in layout])
-    labels = ax.set_yticklabels([str(entry[1]["scope"]) for entry in layout], fontsize="small")
-    for label, entry in zip(labels, layout):
-        if entry[3]:
-            label.set_fontweight("bold")
-    ax.set_ylim(min(entry[0] for entry in layout) - 0.7, 0.7)
-    ax.set_xlabel("Reduction of the per-run tip RMSE (mm; > 0: second method better)")
-    ax.grid(axis="x", alpha=0.3)
-    handles = [
-        Line2D([], [], color=colour, marker="D", markeredgecolor="black", linewidth=2.5)
-        for _, _, colour in group_tops
-    ]
-    figure.suptitle(
-        title or "Paired reductions of the per-run tip RMSE (mean and confidence interval)"
-    )
-    _figure_legend(figure, handles, [comparison for _, comparison, _ in group_tops])
-    return figure
+    note = f"{_percent(row['reduction_pct'])} | {_percent(row['fraction_improved'], 100)}"
+    ax.text(1.02, y, note, transform=side, va="center", ha="left", fontsize="x-small",
+            fontweight="bold" if pooled else "normal")
 
 
 # ---------------------------------------------------------------------------
 # all figures to files
 # ---------------------------------------------------------------------------
+def _box_plans(run_rmse):
+    """(file name, drawing function) of every box-plot figure whose methods were run."""
+    plans = []
+    for file_name, (methods, needed, title) in _BOX_FIGURES.items():
+        found = _has_methods(run_rmse, methods)
+        if file_name == "conditioning.png":  # the full model alone is no ablation
+            found = [m for m in found if not (METHODS[m].use_torque and METHODS[m].use_context)]
+        if len(found) >= needed:
+            plans.append((file_name, lambda m=methods, t=title: plot_rmse_boxes(run_rmse, m, title=t)))
+    return plans
+
+
 def _has_methods(table, methods):
     """Which of ``methods`` appear in the method column of ``table``."""
     available = set(pd.unique(table["method"]))
     return [method for method in methods if method in available]
 
 
+@validate_params(
+    {
+        "tables": [Mapping],
+        "out_dir": [str, os.PathLike],
+        "dpi": [Interval(Real, 0, None, closed="neither")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def write_figures(tables: Mapping[str, pd.DataFrame], out_dir, *, dpi: float = 150) -> list[Path]:
     """Draw the protocol figures from its summary tables and save them as PNG.
 
@@ -1054,49 +1074,16 @@ def write_figures(tables: Mapping[str, pd.DataFrame], out_dir, *, dpi: float = 1
     ImportError
         If matplotlib is not installed.
     """
-    if not isinstance(tables, Mapping):
-        raise ValueError(
-            f"tables must be a mapping from table names ({', '.join(TABLE_COLUMNS)}) to "
-            f"DataFrames; got {type(tables).__name__}."
-        )
     unknown = [key for key in tables if key not in TABLE_COLUMNS]
     if unknown:
         raise ValueError(
             f"Unknown table name(s) {unknown!r}; expected any of {', '.join(TABLE_COLUMNS)}."
         )
-    if (
-        isinstance(dpi, bool)
-        or not isinstance(dpi, (int, float, np.number))
-        or not (np.isfinite(dpi) and dpi > 0)
-    ):
-        raise ValueError(f"dpi must be a positive number of dots per inch; got {dpi!r}.")
     given = {key: table for key, table in tables.items() if table is not None}
     for key, table in given.items():
         _check_table(table, key)
 
-    plans: list[tuple[str, object]] = []
-    run_rmse = given.get("run_rmse")
-    if run_rmse is not None:
-        for file_name, methods, needed in (
-            ("rmse_boxes.png", MAIN_METHODS, 1),
-            ("residual_learners.png", RESIDUAL_METHODS, len(RESIDUAL_METHODS)),
-            ("new_catheter.png", NEW_CATHETER_METHODS, len(NEW_CATHETER_METHODS)),
-            ("conditioning.png", CONDITIONING_METHODS, 1),
-        ):
-            found = _has_methods(run_rmse, methods)
-            if file_name == "conditioning.png":
-                # the full model alone is no ablation: at least one variant is needed
-                found = [method for method in found if method != CONDITIONING_METHODS[0]]
-            if len(found) >= needed:
-                title = _BOX_TITLES.get(file_name)
-                plans.append(
-                    (
-                        file_name,
-                        lambda methods=methods, title=title: plot_rmse_boxes(
-                            run_rmse, methods, title=title
-                        ),
-                    )
-                )
+    plans = _box_plans(given["run_rmse"]) if given.get("run_rmse") is not None else []
     for key, file_name, plot in (
         ("cdf", "error_cdf.png", plot_error_cdf),
         ("magnitude_bins", "error_by_magnitude.png", plot_error_by_magnitude),

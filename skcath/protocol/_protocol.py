@@ -1,42 +1,71 @@
-"""Run the evaluation protocol: backbones, pretraining, fine-tuning, predictions."""
+"""Run the evaluation protocol: backbones, pretraining, fine-tuning, predictions.
+
+:func:`run_protocol` is the whole protocol. Its steps are public, so that
+other experiments on the protocol's models (the calibration budget) train
+them the same way: :func:`calibrate_backbones` calibrates the backbones on
+every run's sweep, :func:`learner_input` gives the residual learners' input,
+:func:`protocol_folds` splits the recordings by catheter and by setting,
+:func:`pretrain_models` pretrains the learned methods on the other catheters
+and :func:`finetune_models` fine-tunes them within each catheter.
+"""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Mapping
+from numbers import Integral
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.frozen import FrozenEstimator
 from sklearn.utils import Bunch
+from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
 from .. import _format as fmt
 from .._validation import check_recordings
-from ..backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
-from ..model_selection import LeaveOneCatheterOut, LeaveOneSettingOut, SettingGroupKFold
-from ..model_selection._split import _exclusion_set
-from ..residuals import GRUResidual, MLPResidual
-from ._schedule import VARIANTS, get_schedule
+from ..backbones import BACKBONE_COLUMNS
+from ..model_selection import (
+    LeaveOneCatheterOut,
+    LeaveOneSettingOut,
+    SettingGroupKFold,
+    exclusion_set,
+)
+from ._methods import BACKBONE_METHODS, BACKBONES, LOCO_METHOD, LOCO_VARIANT, METHODS, make_learner
+from ._schedule import SCHEDULE_CONSTRAINT, get_schedule
 
-__all__ = ["run_protocol"]
-
-#: The learned method whose pretrained models are reported as leave-one-catheter-out.
-LOCO_VARIANT = "PDL+GRU"
-
-#: Name of the leave-one-catheter-out results among the methods.
-LOCO_METHOD = f"{LOCO_VARIANT} (LOCO)"
+__all__ = [
+    "Fold",
+    "LEARNER_COLUMNS",
+    "calibrate_backbones",
+    "finetune_models",
+    "learner_input",
+    "pretrain_models",
+    "protocol_folds",
+    "run_protocol",
+]
 
 #: Columns the residual learners need (the recording format plus the backbone output).
-_LEARNER_COLUMNS = (*fmt.REQUIRED_COLUMNS, *BACKBONE_COLUMNS)
+LEARNER_COLUMNS = (*fmt.REQUIRED_COLUMNS, *BACKBONE_COLUMNS)
+
+#: The backbone the learned methods correct (the ``backbone`` of every learned method).
+(_LEARNER_BACKBONE,) = {method.backbone for method in METHODS.values() if method.learner is not None}
+
+
+class Fold(NamedTuple):
+    """One split of the protocol: the catheter tested, and training and test row positions."""
+
+    catheter: str
+    train: np.ndarray
+    test: np.ndarray
 
 
 def _make_learner(variant, seed, params):
     """A fresh residual learner of ``variant`` (one torch thread: tasks run in parallel)."""
-    learner, use_torque, use_context = VARIANTS[variant]
-    cls = GRUResidual if learner == "gru" else MLPResidual
-    return cls(use_torque=use_torque, use_context=use_context, random_state=seed, n_threads=1, **params)
+    return make_learner(variant, random_state=seed, n_threads=1, **params)
 
 
 def _pretrain(key, params, X_train, y_train, X_tests):
@@ -91,6 +120,278 @@ def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
     return out
 
 
+def learner_input(X, **backbone_params):
+    """The input of the residual learners: the recordings and the nominal tip of their backbone.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format (``docs/data_format.rst``).
+    **backbone_params
+        Parameters of the backbone (``n_rays``, ``ray_spacing_deg``,
+        ``n_jobs``, ...), calibrated on each run's own sweep.
+
+    Returns
+    -------
+    X_learner : pandas.DataFrame
+        The columns of :data:`LEARNER_COLUMNS`, one row per row of ``X``;
+        the backbone columns hold the nominal tip (mm) of the backbone the
+        learned methods correct (PDL).
+    """
+    backbone = BACKBONES[_LEARNER_BACKBONE](**backbone_params)
+    return backbone.fit(X).transform(X)[list(LEARNER_COLUMNS)]
+
+
+def calibrate_backbones(X, **backbone_params):
+    """Calibrate every backbone on each run's own sweep.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        The recordings.
+    **backbone_params
+        Parameters given to every backbone, as in :func:`learner_input`.
+
+    Returns
+    -------
+    X_learner : pandas.DataFrame
+        The input of the residual learners (:func:`learner_input`).
+    predictions : dict of str to ndarray of shape (n_samples, 3)
+        Nominal tip (mm) of every backbone method (``"PCC"``, ``"PDL"``).
+    """
+    X_learner = learner_input(X, **backbone_params)
+    predictions = {}
+    for name in BACKBONE_METHODS:
+        backbone = METHODS[name].backbone
+        if backbone == _LEARNER_BACKBONE:
+            predictions[name] = X_learner[list(BACKBONE_COLUMNS)].to_numpy()
+        else:
+            predictions[name] = BACKBONES[backbone](**backbone_params).fit(X).predict(X)
+    return X_learner, predictions
+
+
+@validate_params(
+    {
+        "X": "no_validation",
+        "schedule": SCHEDULE_CONSTRAINT,
+        "exclude_settings": "no_validation",
+        "catheters": ["array-like", None],
+    },
+    prefer_skip_nested_validation=True,
+)
+def protocol_folds(X, schedule, *, exclude_settings=None, catheters=None):
+    """The protocol's catheter-held-out and setting-held-out folds.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format, rows in the order the folds index.
+    schedule : {"full", "quick"} or Schedule
+        Its ``n_setting_folds`` chooses the setting-held-out splitter.
+    exclude_settings : str or iterable of str, default=None
+        Settings never tested (kept for training).
+    catheters : iterable of str, default=None
+        Catheters tested; None tests all.
+
+    Returns
+    -------
+    folds : sklearn.utils.Bunch
+        ``loco``: one :class:`Fold` per tested catheter, trained on the other
+        catheters (:class:`~skcath.model_selection.LeaveOneCatheterOut`);
+        ``within``: the folds of each tested catheter's settings
+        (:class:`~skcath.model_selection.LeaveOneSettingOut`, or
+        :class:`~skcath.model_selection.SettingGroupKFold` with the
+        schedule's ``n_setting_folds``).
+    """
+    schedule = get_schedule(schedule)
+    exclude = tuple(sorted(exclusion_set(exclude_settings)))
+    if schedule.n_setting_folds is None:
+        within = LeaveOneSettingOut(exclude_settings=exclude)
+    else:
+        within = SettingGroupKFold(n_splits=schedule.n_setting_folds, exclude_settings=exclude)
+    catheter_ids = X[fmt.CATHETER].astype(str).to_numpy()
+
+    def folds(splitter):
+        out = [Fold(str(catheter_ids[test[0]]), train, test) for train, test in splitter.split(X)]
+        return [fold for fold in out if catheters is None or fold.catheter in catheters]
+
+    return Bunch(loco=folds(LeaveOneCatheterOut(exclude_settings=exclude)), within=folds(within))
+
+
+def _timing(stage, key, seconds):
+    return {"stage": stage, "variant": key["variant"], "seed": key["seed"],
+            "catheter": key["catheter"], "seconds": seconds}
+
+
+#: Parameters shared by pretrain_models and finetune_models.
+_STAGE_PARAMETERS = {
+    "X": [pd.DataFrame],
+    "y": ["array-like"],
+    "folds": ["array-like"],
+    "schedule": SCHEDULE_CONSTRAINT,
+    "variants": ["array-like", None],
+    "n_jobs": [Integral, None],
+    "verbose": ["verbose"],
+}
+
+
+@validate_params(
+    {**_STAGE_PARAMETERS, "predict": ["array-like"]}, prefer_skip_nested_validation=False
+)
+def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=1, verbose=False):
+    """Pretrain every learned method and seed on the other catheters.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Input of the residual learners (:func:`calibrate_backbones`).
+    y : array-like of shape (n_samples, 3)
+        Measured tip positions (mm), rows of ``X``.
+    folds : list of Fold
+        Catheter-held-out folds (``loco`` of :func:`protocol_folds`).
+    schedule : {"full", "quick"} or Schedule
+        Seeds, model and pretraining parameters.
+    variants : iterable of str, default=None
+        Learned methods to pretrain; None pretrains the schedule's variants.
+    predict : iterable of str, default=()
+        Variants whose pretrained models also predict their fold's test rows.
+    n_jobs : int, default=1
+        Models trained in parallel (joblib); each uses one torch thread.
+    verbose : bool, default=False
+        Show a progress bar on standard error.
+
+    Returns
+    -------
+    result : sklearn.utils.Bunch
+        ``models`` and, for the variants of ``predict``, ``predictions``
+        (ndarray of the fold's test rows, mm), both keyed by (variant, seed,
+        catheter); ``timings``, one dict per model (``stage``, ``variant``,
+        ``seed``, ``catheter``, ``seconds``), in the order the models finished.
+    """
+    schedule = get_schedule(schedule)
+    variants = schedule.variants if variants is None else tuple(variants)
+    params = {**schedule.model_params, **schedule.pretrain_params}
+    y = np.asarray(y, dtype=float)
+
+    def tasks():
+        for fold in folds:
+            for variant in variants:
+                for seed in schedule.seeds:
+                    key = {"variant": variant, "seed": seed, "catheter": fold.catheter, "test": fold.test}
+                    X_tests = [X.iloc[fold.test]] if variant in predict else []
+                    yield delayed(_pretrain)(key, params, X.iloc[fold.train], y[fold.train], X_tests)
+
+    out = Bunch(models={}, predictions={}, timings=[])
+    n_tasks = len(folds) * len(variants) * len(schedule.seeds)
+    for key, model, preds, seconds in _run_tasks(tasks(), n_tasks, n_jobs, "pretraining", verbose):
+        name = (key["variant"], key["seed"], key["catheter"])
+        out.models[name] = model
+        if preds:
+            out.predictions[name] = preds[0]
+        out.timings.append(_timing("pretrain", key, seconds))
+    return out
+
+
+@validate_params(
+    {**_STAGE_PARAMETERS, "pretrained": [Mapping], "tests": [callable, None]},
+    prefer_skip_nested_validation=False,
+)
+def finetune_models(
+    X, y, folds, schedule, pretrained, *, variants=None, tests=None, n_jobs=1, verbose=False
+):
+    """Fine-tune the pretrained models on each fold's training runs and predict its test runs.
+
+    Parameters
+    ----------
+    X, y : pandas.DataFrame, array-like of shape (n_samples, 3)
+        Input of the residual learners and measured tip positions (mm), as
+        in :func:`pretrain_models`.
+    folds : list of Fold
+        Setting-held-out folds (``within`` of :func:`protocol_folds`).
+    schedule : {"full", "quick"} or Schedule
+        Seeds, model and fine-tuning parameters.
+    pretrained : mapping
+        Pretrained model of every (variant, seed, catheter), the ``models`` of
+        :func:`pretrain_models`; a fold's models are those of its catheter.
+    variants : iterable of str, default=None
+        Learned methods to fine-tune; None fine-tunes the schedule's variants.
+    tests : callable, default=None
+        ``tests(fold)`` gives the list of frames a fold's models predict; by
+        default its test rows of ``X``.
+    n_jobs : int, default=1
+        Models trained in parallel, as in :func:`pretrain_models`.
+    verbose : bool, default=False
+        Show a progress bar on standard error.
+
+    Returns
+    -------
+    result : sklearn.utils.Bunch
+        ``predictions``: the list of predictions (mm), one per frame of
+        ``tests(fold)``, keyed by (variant, seed, fold number); ``timings``
+        as in :func:`pretrain_models`.
+    """
+    schedule = get_schedule(schedule)
+    variants = schedule.variants if variants is None else tuple(variants)
+    params = {**schedule.model_params, **schedule.finetune_params}
+    y = np.asarray(y, dtype=float)
+
+    def tasks():
+        for number, fold in enumerate(folds):
+            X_tests = [X.iloc[fold.test]] if tests is None else tests(fold)
+            for variant in variants:
+                for seed in schedule.seeds:
+                    key = {"variant": variant, "seed": seed, "catheter": fold.catheter,
+                           "fold": number}
+                    yield delayed(_finetune)(
+                        key, params, pretrained[variant, seed, fold.catheter],
+                        X.iloc[fold.train], y[fold.train], X_tests,
+                    )
+
+    out = Bunch(predictions={}, timings=[])
+    n_tasks = len(folds) * len(variants) * len(schedule.seeds)
+    for key, _, preds, seconds in _run_tasks(tasks(), n_tasks, n_jobs, "fine-tuning", verbose):
+        out.predictions[key["variant"], key["seed"], key["fold"]] = preds
+        out.timings.append(_timing("fine-tune", key, seconds))
+    return out
+
+
+def _check_protocol_input(X, y, exclude_settings):
+    """Checked recordings (index reset), float targets and the sorted excluded settings."""
+    exclude = tuple(sorted(exclusion_set(exclude_settings)))
+    X, y = check_recordings(X, y)
+    if y is None:
+        raise ValueError("y (the measured tip positions, mm) is required to run the protocol.")
+    catheters = pd.unique(X[fmt.CATHETER].astype(str))
+    if len(catheters) < 2:
+        raise ValueError(
+            "the protocol pretrains on the other catheters, so X needs recordings of at least "
+            f"two catheters in its 'catheter' column; got {list(catheters)}."
+        )
+    return X.reset_index(drop=True), np.asarray(y, dtype=float), exclude
+
+
+def _evaluated(predictions, rows):
+    """Every method's predictions on the evaluated rows, checked to be complete."""
+    out = {}
+    for method, by_seed in predictions.items():
+        out[method] = {seed: values[rows] for seed, values in by_seed.items()}
+        missing = [seed for seed, values in out[method].items() if not np.isfinite(values).all()]
+        if missing:  # every evaluated row must have been a test row of exactly the expected folds
+            raise RuntimeError(f"{method}: some evaluated rows got no prediction (seeds {missing}).")
+    return out
+
+
+@validate_params(
+    {
+        "X": "no_validation",
+        "y": ["array-like", None],
+        "schedule": SCHEDULE_CONSTRAINT,
+        "exclude_settings": "no_validation",
+        "n_jobs": [Integral, None],
+        "verbose": ["verbose"],
+    },
+    prefer_skip_nested_validation=False,
+)
 def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verbose=False):
     """Run the paper's evaluation protocol on a set of recordings.
 
@@ -135,104 +436,40 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         trained model, s) and ``elapsed`` (total wall time, s).
     """
     schedule = get_schedule(schedule)
-    exclude = tuple(sorted(_exclusion_set(exclude_settings)))
-    X, y = check_recordings(X, y)
-    if y is None:
-        raise ValueError("y (the measured tip positions, mm) is required to run the protocol.")
-    catheters = pd.unique(X[fmt.CATHETER].astype(str))
-    if len(catheters) < 2:
-        raise ValueError(
-            "the protocol pretrains on the other catheters, so X needs recordings of at least "
-            f"two catheters in its 'catheter' column; got {list(catheters)}."
-        )
+    X, y, exclude = _check_protocol_input(X, y, exclude_settings)
     start = time.perf_counter()
-    X = X.reset_index(drop=True)
-    y = np.asarray(y, dtype=float)
-
-    loco = LeaveOneCatheterOut(exclude_settings=exclude)
-    if schedule.n_setting_folds is None:
-        within = LeaveOneSettingOut(exclude_settings=exclude)
-    else:
-        within = SettingGroupKFold(n_splits=schedule.n_setting_folds, exclude_settings=exclude)
-    loco_folds = list(loco.split(X))
-    within_folds = list(within.split(X))
+    folds = protocol_folds(X, schedule, exclude_settings=exclude)
     evaluated = np.zeros(len(X), dtype=bool)
-    for _, test in loco_folds:
-        evaluated[test] = True
+    for fold in folds.loco:
+        evaluated[fold.test] = True
+    rows = np.flatnonzero(evaluated)
 
     if verbose:
-        tqdm.write("calibrating the PCC and PDL backbones on every run's sweep ...", file=sys.stderr)
-    Xb = PDLBackbone(n_jobs=n_jobs).fit(X).transform(X)[list(_LEARNER_COLUMNS)]
-    pdl = Xb[list(BACKBONE_COLUMNS)].to_numpy()
-    pcc = PCCBackbone(n_jobs=n_jobs).fit(X).predict(X)
-
-    pre_params = {**schedule.model_params, **schedule.pretrain_params}
-    fine_params = {**schedule.model_params, **schedule.finetune_params}
-    def pretrain_tasks():
-        for train, test in loco_folds:
-            catheter = str(X[fmt.CATHETER].iloc[test[0]])
-            for variant in schedule.variants:
-                for seed in schedule.seeds:
-                    key = {"variant": variant, "seed": seed, "catheter": catheter, "test": test}
-                    X_tests = [Xb.iloc[test]] if variant == LOCO_VARIANT else []
-                    yield delayed(_pretrain)(key, pre_params, Xb.iloc[train], y[train], X_tests)
-
-    n_models = len(schedule.variants) * len(schedule.seeds)
-    pretrained = {}
+        backbones = " and ".join(BACKBONE_METHODS)
+        tqdm.write(f"calibrating the {backbones} backbones on every run's sweep ...", file=sys.stderr)
+    Xb, backbone_predictions = calibrate_backbones(X, n_jobs=n_jobs)
     # every method and seed gets its slot now, in a fixed order, because the
     # tasks finish in whatever order the workers complete them
-    learned = [*schedule.variants]
-    if LOCO_VARIANT in schedule.variants:
-        learned.append(LOCO_METHOD)
-    predictions = {"PCC": {None: pcc}, "PDL": {None: pdl}}
+    predictions = {name: {None: values} for name, values in backbone_predictions.items()}
+    learned = [*schedule.variants, *([LOCO_METHOD] if LOCO_VARIANT in schedule.variants else [])]
     for method in learned:
         predictions[method] = {seed: np.full((len(X), 3), np.nan) for seed in schedule.seeds}
 
-    def store(method, seed, rows, values):
-        predictions[method][seed][rows] = values
+    stage = dict(n_jobs=n_jobs, verbose=verbose)
+    pretrained = pretrain_models(Xb, y, folds.loco, schedule, predict=(LOCO_VARIANT,), **stage)
+    tested = {fold.catheter: fold.test for fold in folds.loco}
+    for (_, seed, catheter), values in pretrained.predictions.items():
+        predictions[LOCO_METHOD][seed][tested[catheter]] = values
+    finetuned = finetune_models(Xb, y, folds.within, schedule, pretrained.models, **stage)
+    for (variant, seed, number), values in finetuned.predictions.items():
+        predictions[variant][seed][folds.within[number].test] = values[0]
 
-    timings = []
-    for key, model, preds, seconds in _run_tasks(
-        pretrain_tasks(), n_models * len(loco_folds), n_jobs, "pretraining", verbose
-    ):
-        pretrained[key["variant"], key["seed"], key["catheter"]] = model
-        if key["variant"] == LOCO_VARIANT:
-            store(LOCO_METHOD, key["seed"], key["test"], preds[0])
-        timings.append({"stage": "pretrain", "variant": key["variant"], "seed": key["seed"],
-                        "catheter": key["catheter"], "seconds": seconds})
-
-    def finetune_tasks():
-        for fold, (train, test) in enumerate(within_folds):
-            catheter = str(X[fmt.CATHETER].iloc[test[0]])
-            for variant in schedule.variants:
-                for seed in schedule.seeds:
-                    key = {"variant": variant, "seed": seed, "catheter": catheter, "fold": fold,
-                           "test": test}
-                    yield delayed(_finetune)(
-                        key, fine_params, pretrained[variant, seed, catheter],
-                        Xb.iloc[train], y[train], [Xb.iloc[test]],
-                    )
-
-    for key, _, preds, seconds in _run_tasks(
-        finetune_tasks(), n_models * len(within_folds), n_jobs, "fine-tuning", verbose
-    ):
-        store(key["variant"], key["seed"], key["test"], preds[0])
-        timings.append({"stage": "fine-tune", "variant": key["variant"], "seed": key["seed"],
-                        "catheter": key["catheter"], "seconds": seconds})
-
-    rows = np.flatnonzero(evaluated)
-    out = {}
-    for method, by_seed in predictions.items():
-        out[method] = {seed: values[rows] for seed, values in by_seed.items()}
-        missing = [seed for seed, values in out[method].items() if not np.isfinite(values).all()]
-        if missing:  # every evaluated row must have been a test row of exactly the expected folds
-            raise RuntimeError(f"{method}: some evaluated rows got no prediction (seeds {missing}).")
     return Bunch(
         X=X.iloc[rows].reset_index(drop=True),
         y=y[rows],
-        predictions=out,
+        predictions=_evaluated(predictions, rows),
         schedule=schedule,
         exclude_settings=exclude,
-        timings=pd.DataFrame(timings),
+        timings=pd.DataFrame(pretrained.timings + finetuned.timings),
         elapsed=time.perf_counter() - start,
     )

@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pandas as pd
+from sklearn.utils import Bunch
+from sklearn.utils._param_validation import validate_params
+
+from ._figures import write_figures
+from ._methods import LOCO_VARIANT, MAIN_METHODS, METHODS, methods_with_role
 
 from ._figures import write_figures
 
@@ -32,6 +38,9 @@ TABLE_FILES = {
 #: Tables the figures are drawn from.
 FIGURE_TABLES = ("run_rmse", "cdf", "magnitude_bins", "time_bins", "paired", "example")
 
+#: Long tables, written without their (row number) index.
+_LONG_TABLES = ("run_rmse", "run_rmse_by_seed", "cdf", "magnitude_bins", "time_bins", "example", "paired")
+
 
 def _mm(table):
     """Position errors to one decimal place, as the paper reports them."""
@@ -44,6 +53,18 @@ def _bins(table, unit):
     return table
 
 
+def _residual_learners_text(table):
+    """The residual learners' table, with the runs improved by the second learner."""
+    first, second = methods_with_role("residual_learners")
+    first_learner, second_learner = (METHODS[m].learner.upper() for m in (first, second))
+    text = table.drop(index="fraction_improved").to_string(float_format=lambda v: f"{v:.1f}")
+    improved = " ".join(f"{c}: {100 * v:.0f}%" for c, v in table.loc["fraction_improved"].items())
+    return (f"Residual learners: {first} vs {second} (mm; reduction = {first_learner} - "
+            f"{second_learner}, 95% setting-cluster interval)\n{text}\n"
+            f"runs improved by the {second_learner}: {improved}")
+
+
+@validate_params({"tables": [dict], "result": [Bunch, None]}, prefer_skip_nested_validation=True)
 def format_report(tables, result=None):
     """The protocol's tables as text, in the order of the paper.
 
@@ -73,20 +94,16 @@ def format_report(tables, result=None):
     if "table_2" in tables:
         parts.append("Table II. Torque/context ablation RMSE (mm)\n" + _mm(tables["table_2"]))
     if "residual_learners" in tables:
-        t = tables["residual_learners"].copy()
-        text = t.drop(index="fraction_improved").to_string(float_format=lambda v: f"{v:.1f}")
-        improved = " ".join(f"{c}: {100 * v:.0f}%" for c, v in t.loc["fraction_improved"].items())
-        parts.append("Residual learners: PDL+MLP vs PDL+GRU (mm; reduction = MLP - GRU, 95% "
-                     f"setting-cluster interval)\n{text}\nruns improved by the GRU: {improved}")
+        parts.append(_residual_learners_text(tables["residual_learners"]))
     if "loco" in tables:
         t = tables["loco"]
         text = t.drop(index=t.index[-1]).to_string(float_format=lambda v: f"{v:.1f}")
         below = " ".join(f"{c}: {v:.0f}%" for c, v in t.iloc[-1].items())
-        parts.append("Leave one catheter out: PDL+GRU trained on the other catheters only (mm)\n"
+        parts.append(f"Leave one catheter out: {LOCO_VARIANT} trained on the other catheters only (mm)\n"
                      f"{text}\nruns below 4 mm (LOCO): {below}")
     parts.append("Samples below 5 mm (%, within-run fractions averaged over runs)\n"
                  + tables["cdf_at_5mm"].to_string(float_format=lambda v: f"{v:.0f}"))
-    main = [m for m in ("PCC", "PDL", "PDL+GRU") if m in tables["magnitude"]]
+    main = [m for m in MAIN_METHODS if m in tables["magnitude"]]
     parts.append("RMSE by motor-input magnitude (median run-bin RMSE, mm)\n"
                  + _mm(_bins(tables["magnitude"][main], "deg")))
     parts.append("RMSE over motion time (mean run-bin RMSE, mm)\n"
@@ -106,6 +123,10 @@ def format_report(tables, result=None):
     return "\n\n".join(parts)
 
 
+@validate_params(
+    {"tables": [dict], "out_dir": [str, os.PathLike], "figures": ["boolean"]},
+    prefer_skip_nested_validation=True,
+)
 def write_results(tables, out_dir, *, figures=True):
     """Write the tables as CSV and, if matplotlib is installed, the figures as PNG.
 
@@ -129,9 +150,7 @@ def write_results(tables, out_dir, *, figures=True):
     for key, name in TABLE_FILES.items():
         if key in tables:
             path = out / name
-            keep_index = key not in ("run_rmse", "run_rmse_by_seed", "cdf", "magnitude_bins",
-                                     "time_bins", "example", "paired")
-            tables[key].to_csv(path, index=keep_index, float_format="%.6g")
+            tables[key].to_csv(path, index=key not in _LONG_TABLES, float_format="%.6g")
             paths.append(path)
     if figures:
         figure_tables = {key: tables[key] for key in FIGURE_TABLES if key in tables}

@@ -4,17 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["Schedule", "QUICK", "FULL", "VARIANTS", "get_schedule"]
+from sklearn.utils._param_validation import StrOptions, validate_params
 
-#: Learned methods of the protocol: display name -> (learner, use_torque, use_context).
-#: ``PDL+GRU`` is the proposed estimator; the others are the paper's ablations.
-VARIANTS = {
-    "PDL+GRU": ("gru", True, True),
-    "PDL+MLP": ("mlp", True, True),
-    "PDL+GRU (no torque)": ("gru", False, True),
-    "PDL+GRU (no context)": ("gru", True, False),
-    "PDL+GRU (no torque, no context)": ("gru", False, False),
-}
+from ._methods import VARIANTS
+
+__all__ = ["Schedule", "QUICK", "FULL", "get_schedule"]
 
 
 @dataclass(frozen=True)
@@ -85,20 +79,42 @@ QUICK = Schedule(
 )
 
 
+#: The named schedules.
+_NAMED = {"full": FULL, "quick": QUICK}
+
+#: Constraint of a ``schedule`` parameter: a named schedule or a Schedule.
+SCHEDULE_CONSTRAINT = [StrOptions(set(_NAMED)), Schedule]
+
+
+@validate_params({"schedule": SCHEDULE_CONSTRAINT}, prefer_skip_nested_validation=True)
 def get_schedule(schedule):
-    """Return a :class:`Schedule` from a name (``"full"``, ``"quick"``) or a Schedule."""
-    if isinstance(schedule, Schedule):
-        unknown = sorted(set(schedule.variants) - set(VARIANTS))
-        if unknown:
-            raise ValueError(
-                f"schedule.variants has unknown names {unknown}; expected names from {list(VARIANTS)}."
-            )
-        if not schedule.seeds:
-            raise ValueError("schedule.seeds must name at least one seed.")
-        if len(set(schedule.seeds)) != len(schedule.seeds):
-            raise ValueError(f"schedule.seeds must not repeat a seed; got {schedule.seeds}.")
-        return schedule
-    named = {"full": FULL, "quick": QUICK}
-    if schedule not in named:
-        raise ValueError(f"schedule must be 'full', 'quick' or a Schedule; got {schedule!r}.")
-    return named[schedule]
+    """A :class:`Schedule` from its name or a Schedule, checked.
+
+    Parameters
+    ----------
+    schedule : {"full", "quick"} or Schedule
+        A named schedule (:data:`FULL`, :data:`QUICK`) or a schedule of one's
+        own.
+
+    Returns
+    -------
+    schedule : Schedule
+
+    Raises
+    ------
+    ValueError
+        If a Schedule names an unknown variant (:data:`VARIANTS`), no seed
+        or a seed twice.
+    """
+    if not isinstance(schedule, Schedule):
+        return _NAMED[schedule]
+    unknown = sorted(set(schedule.variants) - set(VARIANTS))
+    if unknown:
+        raise ValueError(
+            f"schedule.variants has unknown names {unknown}; expected names from {list(VARIANTS)}."
+        )
+    if not schedule.seeds:
+        raise ValueError("schedule.seeds must name at least one seed.")
+    if len(set(schedule.seeds)) != len(schedule.seeds):
+        raise ValueError(f"schedule.seeds must not repeat a seed; got {schedule.seeds}.")
+    return schedule

@@ -6,8 +6,12 @@ seeds (per run, per CDF point, per run-bin), as in the paper.
 
 from __future__ import annotations
 
+from numbers import Integral
+
 import numpy as np
 import pandas as pd
+from sklearn.utils import Bunch
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .. import _format as fmt
 from ..metrics import (
@@ -17,32 +21,16 @@ from ..metrics import (
     rmse_by_motor_magnitude,
     rmse_over_time,
 )
-from ._protocol import LOCO_METHOD
+from ._methods import (
+    COMPARISONS,
+    LOCO_METHOD,
+    MAIN_METHODS,
+    TORQUE_CONTEXT,
+    comparison_label,
+    methods_with_role,
+)
 
-__all__ = ["compute_tables", "MAIN_METHODS", "COMPARISONS", "TORQUE_CONTEXT"]
-
-#: Methods of Table I and of the distribution figures.
-MAIN_METHODS = ("PCC", "PDL", "PDL+GRU")
-
-#: Table II: (torque, context) -> method.
-TORQUE_CONTEXT = {
-    ("No", "No"): "PDL+GRU (no torque, no context)",
-    ("Yes", "No"): "PDL+GRU (no context)",
-    ("No", "Yes"): "PDL+GRU (no torque)",
-    ("Yes", "Yes"): "PDL+GRU",
-}
-
-#: Paired comparisons: label -> (baseline, candidate); the reduction is baseline - candidate.
-COMPARISONS = {
-    "PCC -> PDL+GRU": ("PCC", "PDL+GRU"),
-    "PDL -> PDL+GRU": ("PDL", "PDL+GRU"),
-    "PDL+MLP -> PDL+GRU": ("PDL+MLP", "PDL+GRU"),
-    "torque (with context)": ("PDL+GRU (no torque)", "PDL+GRU"),
-    "torque (without context)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no context)"),
-    "context (with torque)": ("PDL+GRU (no context)", "PDL+GRU"),
-    "context (without torque)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no torque)"),
-    "catheter held out -> setting held out": (LOCO_METHOD, "PDL+GRU"),
-}
+__all__ = ["compute_tables"]
 
 #: Grid of the error CDF (mm).
 CDF_GRID = np.round(np.arange(0.0, 30.0 + 1e-9, 0.25), 2)
@@ -84,6 +72,132 @@ def _by_catheter(run_rmse, methods, catheters):
     return pd.DataFrame(rows).T
 
 
+#: Per-seed tables averaged over the seeds: key -> (columns averaged over, value averaged).
+_SEED_MEANS = {
+    "runs": ([fmt.RUN], "rmse_mm"),
+    "cdf": (["error_mm"], "fraction"),
+    "magnitude": ([fmt.RUN, "bin_left", "bin_right"], "rmse_mm"),
+    "time": ([fmt.RUN, "bin_left", "bin_right"], "rmse_mm"),
+}
+
+
+def _seed_tables(y, pred, X):
+    """Per-run RMSE, error CDF and run-bin RMSE (motor magnitude, motion time) of one prediction."""
+    rmse = per_run_rmse(y, pred, X).rename("rmse_mm").reset_index()
+    rmse[fmt.RUN] = rmse[fmt.RUN].astype(str)
+    cdf = error_cdf(y, pred, X, CDF_GRID)
+    cdf = pd.DataFrame({"error_mm": cdf.index.to_numpy(), "fraction": cdf.to_numpy()})
+    tables = {"runs": rmse, "cdf": cdf}
+    binned = (("magnitude", rmse_by_motor_magnitude(y, pred, X)), ("time", rmse_over_time(y, pred, X)))
+    for key, table in binned:
+        table = table.copy()
+        table[fmt.RUN] = table[fmt.RUN].astype(str)
+        tables[key] = table[[fmt.RUN, "bin_left", "bin_right", "rmse_mm"]]
+    return tables
+
+
+def _method_tables(method, by_seed, y, X, info):
+    """One method's tables averaged over its seeds, and its per-run RMSE of every seed (``by_seed``)."""
+    per_seed = {seed: _seed_tables(y, pred, X) for seed, pred in by_seed.items()}
+    tables = {
+        key: _seed_mean([seeds[key] for seeds in per_seed.values()], keys, value)
+        for key, (keys, value) in _SEED_MEANS.items()
+    }
+    tables["runs"] = tables["runs"].join(info, on=fmt.RUN)
+    tables = {key: table.assign(method=method) for key, table in tables.items()}
+    tables["by_seed"] = pd.concat(
+        [seeds["runs"].assign(method=method, seed=seed) for seed, seeds in per_seed.items()],
+        ignore_index=True,
+    )
+    return tables
+
+
+def _long_tables(result, info):
+    """The long tables of every method: one row per run (and seed, bin, CDF point)."""
+    frames = {key: [] for key in (*_SEED_MEANS, "by_seed")}
+    for method, by_seed in result.predictions.items():
+        for key, table in _method_tables(method, by_seed, result.y, result.X, info).items():
+            frames[key].append(table)
+    joined = {key: pd.concat(tables, ignore_index=True) for key, tables in frames.items()}
+    bins = ["method", fmt.RUN, "bin_left", "bin_right", "rmse_mm"]
+    return {
+        "run_rmse": joined["runs"][["method", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]],
+        "run_rmse_by_seed": joined["by_seed"].join(info, on=fmt.RUN)[
+            ["method", "seed", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]],
+        "cdf": joined["cdf"][["method", "error_mm", "fraction"]],
+        "magnitude_bins": joined["magnitude"][bins],
+        "time_bins": _covered_bins(joined["time"][bins], len(info)),
+    }
+
+
+def _torque_context_table(run_rmse, catheters):
+    """Table II, indexed by (torque, context); None without an ablated variant."""
+    table = _by_catheter(run_rmse, TORQUE_CONTEXT.values(), catheters)
+    if len(table) <= 1:  # an ablation table needs at least one ablated variant
+        return None
+    names = {method: inputs for inputs, method in TORQUE_CONTEXT.items()}
+    table.index = pd.MultiIndex.from_tuples([names[m] for m in table.index], names=["torque", "context"])
+    return table
+
+
+def _paired_table(run_rmse, info, catheters, n_bootstrap, random_state):
+    """Paired reductions of every comparison whose two methods were run, per catheter and pooled."""
+    wide = run_rmse.pivot(index=fmt.RUN, columns="method", values="rmse_mm")
+    clusters = info[fmt.CATHETER] + "/" + info[fmt.SETTING]
+    rows = []
+    for label, (base, cand) in COMPARISONS.items():
+        if base not in wide or cand not in wide:
+            continue
+        for scope in [*catheters, "pooled"]:
+            runs = wide.index if scope == "pooled" else info.index[info[fmt.CATHETER] == scope]
+            runs = wide.index.intersection(runs)
+            res = paired_reduction(
+                wide.loc[runs, base], wide.loc[runs, cand], clusters.loc[runs],
+                n_bootstrap=n_bootstrap, random_state=random_state,
+            )
+            rows.append({
+                "comparison": label, "baseline": base, "candidate": cand, "scope": scope,
+                "reduction_mm": res.reduction_mm, "ci_low_mm": res.ci_low_mm, "ci_high_mm": res.ci_high_mm,
+                "reduction_pct": res.reduction_pct, "fraction_improved": res.fraction_improved,
+                "n_runs": res.n_runs,
+            })
+    return pd.DataFrame(rows)
+
+
+def _residual_learners_table(run_rmse, paired, catheters):
+    """The residual learners' RMSE and their paired reduction; None unless both were run."""
+    learners = methods_with_role("residual_learners")
+    if not set(learners) <= set(run_rmse["method"]):
+        return None
+    table = _by_catheter(run_rmse, learners, catheters)
+    sub = paired[paired["comparison"] == comparison_label(*learners)].set_index("scope")
+    for column in ("reduction_mm", "ci_low_mm", "ci_high_mm", "fraction_improved"):
+        table.loc[column] = sub[column].reindex(table.columns)
+    return table
+
+
+def _loco_table(run_rmse, run_rmse_by_seed, info, catheters):
+    """Catheter held out against setting held out, with the runs below 4 mm; None without LOCO."""
+    if LOCO_METHOD not in set(run_rmse["method"]):
+        return None
+    table = _by_catheter(run_rmse, methods_with_role("loco"), catheters)
+    seeds = run_rmse_by_seed[run_rmse_by_seed["method"] == LOCO_METHOD]
+    below = seeds.groupby(fmt.RUN)["rmse_mm"].mean() < 4.0
+    below = below.to_frame("below").join(info)
+    frac = below.groupby(fmt.CATHETER, sort=False)["below"].mean().reindex(catheters)
+    frac["pooled"] = below["below"].mean()
+    table.loc["runs below 4 mm (LOCO, %)"] = 100 * frac
+    return table
+
+
+@validate_params(
+    {
+        "result": [Bunch],
+        "n_bootstrap": [Interval(Integral, 1, None, closed="left")],
+        "random_state": ["random_state"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def compute_tables(result, *, n_bootstrap=2000, random_state=0):
     """Every table of the protocol from :func:`run_protocol`'s result.
 
@@ -108,114 +222,37 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
         ``run_rmse``, ``run_rmse_by_seed``, ``cdf``, ``magnitude_bins``,
         ``time_bins``, ``example``.
     """
-    X, y, predictions = result.X, result.y, result.predictions
-    info = _run_info(X)
+    info = _run_info(result.X)
     catheters = list(pd.unique(info[fmt.CATHETER]))
-
-    per_seed, run_tables, cdfs, mags, times = [], [], [], [], []
-    for method, by_seed in predictions.items():
-        seed_runs, seed_cdf, seed_mag, seed_time = [], [], [], []
-        for seed, pred in by_seed.items():
-            rmse = per_run_rmse(y, pred, X).rename("rmse_mm").reset_index()
-            rmse[fmt.RUN] = rmse[fmt.RUN].astype(str)
-            per_seed.append(rmse.assign(method=method, seed=seed))
-            seed_runs.append(rmse)
-            cdf = error_cdf(y, pred, X, CDF_GRID)
-            seed_cdf.append(pd.DataFrame({"error_mm": cdf.index.to_numpy(), "fraction": cdf.to_numpy()}))
-            for store, table in ((seed_mag, rmse_by_motor_magnitude(y, pred, X)),
-                                 (seed_time, rmse_over_time(y, pred, X))):
-                table = table.copy()
-                table[fmt.RUN] = table[fmt.RUN].astype(str)
-                store.append(table[[fmt.RUN, "bin_left", "bin_right", "rmse_mm"]])
-        runs = _seed_mean(seed_runs, [fmt.RUN])
-        runs = runs.join(info, on=fmt.RUN)
-        run_tables.append(runs.assign(method=method))
-        cdfs.append(_seed_mean(seed_cdf, ["error_mm"], "fraction").assign(method=method))
-        mags.append(_seed_mean(seed_mag, [fmt.RUN, "bin_left", "bin_right"]).assign(method=method))
-        times.append(_seed_mean(seed_time, [fmt.RUN, "bin_left", "bin_right"]).assign(method=method))
-
-    run_rmse = pd.concat(run_tables, ignore_index=True)[
-        ["method", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]]
-    run_rmse_by_seed = pd.concat(per_seed, ignore_index=True)
-    run_rmse_by_seed = run_rmse_by_seed.join(info, on=fmt.RUN)[
-        ["method", "seed", fmt.CATHETER, fmt.SETTING, fmt.RUN, "rmse_mm"]]
-    cdf = pd.concat(cdfs, ignore_index=True)[["method", "error_mm", "fraction"]]
-    magnitude_bins = pd.concat(mags, ignore_index=True)[["method", fmt.RUN, "bin_left", "bin_right", "rmse_mm"]]
-    time_bins = pd.concat(times, ignore_index=True)[["method", fmt.RUN, "bin_left", "bin_right", "rmse_mm"]]
-    time_bins = _covered_bins(time_bins, len(info))
-
-    tables = {
-        "table_1": _by_catheter(run_rmse, MAIN_METHODS, catheters),
-        "run_rmse": run_rmse,
-        "run_rmse_by_seed": run_rmse_by_seed,
-        "cdf": cdf,
-        "magnitude_bins": magnitude_bins,
-        "time_bins": time_bins,
+    long = _long_tables(result, info)
+    run_rmse = long["run_rmse"]
+    tables = {"table_1": _by_catheter(run_rmse, MAIN_METHODS, catheters), **long}
+    paired = _paired_table(run_rmse, info, catheters, n_bootstrap, random_state)
+    optional = {
+        "table_2": _torque_context_table(run_rmse, catheters),
+        "paired": paired,
+        "residual_learners": _residual_learners_table(run_rmse, paired, catheters),
+        "loco": _loco_table(run_rmse, long["run_rmse_by_seed"], info, catheters),
     }
-    table_2 = _by_catheter(run_rmse, TORQUE_CONTEXT.values(), catheters)
-    if len(table_2) > 1:  # an ablation table needs at least one ablated variant
-        names = {m: tc for tc, m in TORQUE_CONTEXT.items()}
-        table_2.index = pd.MultiIndex.from_tuples([names[m] for m in table_2.index], names=["torque", "context"])
-        tables["table_2"] = table_2
+    tables.update({key: table for key, table in optional.items() if table is not None})
 
-    wide = run_rmse.pivot(index=fmt.RUN, columns="method", values="rmse_mm")
-    clusters = info[fmt.CATHETER] + "/" + info[fmt.SETTING]
-    paired_rows = []
-    for label, (base, cand) in COMPARISONS.items():
-        if base not in wide or cand not in wide:
-            continue
-        for scope in [*catheters, "pooled"]:
-            runs = wide.index if scope == "pooled" else info.index[info[fmt.CATHETER] == scope]
-            runs = wide.index.intersection(runs)
-            res = paired_reduction(
-                wide.loc[runs, base], wide.loc[runs, cand], clusters.loc[runs],
-                n_bootstrap=n_bootstrap, random_state=random_state,
-            )
-            paired_rows.append({
-                "comparison": label, "baseline": base, "candidate": cand, "scope": scope,
-                "reduction_mm": res.reduction_mm, "ci_low_mm": res.ci_low_mm, "ci_high_mm": res.ci_high_mm,
-                "reduction_pct": res.reduction_pct, "fraction_improved": res.fraction_improved,
-                "n_runs": res.n_runs,
-            })
-    paired = pd.DataFrame(paired_rows)
-    tables["paired"] = paired
-
-    if "PDL+MLP" in wide and "PDL+GRU" in wide:
-        learners = _by_catheter(run_rmse, ("PDL+MLP", "PDL+GRU"), catheters)
-        sub = paired[paired["comparison"] == "PDL+MLP -> PDL+GRU"].set_index("scope")
-        for column in ("reduction_mm", "ci_low_mm", "ci_high_mm", "fraction_improved"):
-            learners.loc[column] = sub[column].reindex(learners.columns)
-        tables["residual_learners"] = learners
-
-    if LOCO_METHOD in wide:
-        loco = _by_catheter(run_rmse, ("PDL", "PDL+GRU", LOCO_METHOD), catheters)
-        seeds = run_rmse_by_seed[run_rmse_by_seed["method"] == LOCO_METHOD]
-        below = seeds.groupby(fmt.RUN)["rmse_mm"].mean() < 4.0
-        below = below.to_frame("below").join(info)
-        frac = below.groupby(fmt.CATHETER, sort=False)["below"].mean().reindex(catheters)
-        frac["pooled"] = below["below"].mean()
-        loco.loc["runs below 4 mm (LOCO, %)"] = 100 * frac
-        tables["loco"] = loco
-
+    cdf = long["cdf"]
     at5 = cdf[np.isclose(cdf["error_mm"], 5.0)].set_index("method")["fraction"] * 100
     tables["cdf_at_5mm"] = at5.rename("samples below 5 mm (%)").to_frame()
-
-    tables["magnitude"] = (
-        magnitude_bins.groupby(["method", "bin_left", "bin_right"], sort=False)["rmse_mm"].median()
-        .unstack("method").sort_index()
-    )
-    tables["time"] = (
-        time_bins.groupby(["method", "bin_left", "bin_right"], sort=False)["rmse_mm"].mean()
-        .unstack("method").sort_index()
-    )
+    for key, bins, statistic in (("magnitude", "magnitude_bins", "median"), ("time", "time_bins", "mean")):
+        grouped = long[bins].groupby(["method", "bin_left", "bin_right"], sort=False)["rmse_mm"]
+        tables[key] = getattr(grouped, statistic)().unstack("method").sort_index()
     tables["example"] = _motion_example(result, run_rmse)
     return tables
 
 
-def _motion_example(result, run_rmse, method="PDL+GRU", seconds=60.0):
-    """A 60 s motion segment of the run with the widest measured motion (chosen without looking at errors)."""
-    if method not in result.predictions:
-        method = "PDL"
+def _motion_example(result, run_rmse, seconds=60.0):
+    """A 60 s motion segment of the run with the widest measured motion (chosen without looking at errors).
+
+    The estimate shown is that of the first method of the ``example`` role
+    that was run.
+    """
+    method = next(m for m in methods_with_role("example") if m in result.predictions)
     X, y = result.X, result.y
     motion = (X[fmt.PHASE] == fmt.MOTION).to_numpy() & np.isfinite(y).all(axis=1)
     runs = X[fmt.RUN].astype(str).to_numpy()
