@@ -139,9 +139,9 @@ class Catheter:
         Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
     play_w0, play_growth_base, play_growth_scale, play_asym : float
         Play width at zero load and one radian of wrap (deg; it scales
-        with each tendon pair's wrap, see :func:`setting_parameters`); growth of the width with load,
-        ``base + scale (1 - exp(-mu Theta))`` (deg/deg); and the
-        unloading/loading width ratio.
+        with each tendon pair's wrap, see :func:`setting_parameters`);
+        growth of the width with load, ``base + scale (1 - exp(-mu
+        Theta))`` (deg/deg); and the unloading/loading width ratio.
     bw_kappa : float
         Bouc-Wen sharpness.
     rate_gain, rate_speed, creep_gain, creep_tau : float
