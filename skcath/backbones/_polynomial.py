@@ -132,7 +132,7 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
     >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
     >>> b = PolynomialBackbone(degree=3).fit(data.X).predict(data.X)  # doctest: +SKIP
     >>> b.shape  # doctest: +SKIP
-    (104230, 3)
+    (104486, 3)
     """
 
     _parameter_constraints: dict = {
