@@ -1,8 +1,10 @@
-"""Description of the machine a benchmark ran on, shared by the benchmark scripts."""
+"""Description of the machine and of the code a benchmark ran on, shared by the benchmark scripts."""
 
 import datetime
+import hashlib
 import os
 import platform
+from pathlib import Path
 
 
 def machine_lines():
@@ -25,3 +27,23 @@ def machine_lines():
 
     lines.append(f"numpy {numpy.__version__}, scipy {scipy.__version__}, pandas {pandas.__version__}")
     return lines
+
+
+def source_digest(package):
+    """Fingerprint of a package's sources, so that a table can be matched to the code.
+
+    Parameters
+    ----------
+    package : module
+        A package, e.g. ``skcath.datasets``.
+
+    Returns
+    -------
+    digest : str
+        The first 12 hex digits of the sha1 of the names and contents of the
+        ``*.py`` files in the package's folder, in name order.
+    """
+    digest = hashlib.sha1()
+    for path in sorted(Path(package.__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()[:12]

@@ -57,7 +57,6 @@ Targets: median calibration time at most 20 ms (PDL) and 50 ms (PCC) on a
 import argparse
 import contextlib
 import gc
-import hashlib
 import json
 import os
 import sys
@@ -384,19 +383,14 @@ def _thread_pools():
 
 
 def _machine():
-    lines = machine_lines()
-    import skcath.datasets
-    from skcath.datasets import SIMULATOR_VERSION
+    from _machine import source_digest
 
+    import skcath.datasets
+
+    lines = machine_lines()
     # fingerprint the simulator sources, so a table can be matched to the code
-    folder = os.path.dirname(skcath.datasets.__file__)
-    digest = hashlib.sha1()
-    for name in sorted(os.listdir(folder)):
-        if name.endswith(".py"):
-            with open(os.path.join(folder, name), "rb") as f:
-                digest.update(name.encode() + f.read())
-    lines.append(f"SIMULATOR_VERSION = {SIMULATOR_VERSION!r}, "
-                 f"sha1 of skcath/datasets/*.py {digest.hexdigest()[:12]}")
+    lines.append(f"SIMULATOR_VERSION = {skcath.datasets.SIMULATOR_VERSION!r}, "
+                 f"sha1 of skcath/datasets/*.py {source_digest(skcath.datasets)}")
     return lines
 
 

@@ -6,18 +6,19 @@ folder): catheter C1, bent shaft settings (``setting != "S00"``), one setting
 (S01, 3 runs) held out, i.e. 45 training runs. The backbone columns come from
 ``PDLBackbone(n_jobs=2).fit(X).transform(X)``.
 
-Part 1, training throughput. The estimator prepares its training windows
-exactly as in ``fit`` (``_training_windows``: 200-step windows, features,
-loss mask, normalised targets, sweep context input) and the same windows are
-trained on by
+Part 1, training throughput. ``fit`` of the estimator prepares its
+training windows (200-step windows, features, loss mask, normalised
+targets, sweep context input) and hands them to skorch's training loop; a
+skorch callback (``on_train_begin`` / ``on_train_end``, the public hooks of
+skorch) records the windows, the freshly initialised module and the time of
+the loop. The same windows are trained on by
 
-- ``skorch``: the estimator's own training loop, i.e. skorch's
-  ``NeuralNet.partial_fit`` on the prepared windows, called as
-  ``GRUResidual.fit`` calls it (same seeded torch runtime, default callbacks,
-  shuffled ``DataLoader`` over skorch's ``Dataset``), after ``initialize()``;
-- ``plain``: a hand-written torch loop over the same module class with the
-  same initial weights (copied from the estimator's freshly initialised
-  module), the same optimizer (Adam, same ``lr``, and the same learning-rate
+- ``skorch``: the estimator's own training loop, timed by the callback
+  inside ``GRUResidual.fit`` (seeded torch runtime, default callbacks,
+  shuffled ``DataLoader`` over skorch's ``Dataset``);
+- ``plain``: a hand-written torch loop over a copy of the estimator's
+  freshly initialised module (same class, same initial weights), the same
+  optimizer (Adam, same ``lr``, and the same learning-rate
   schedule: cosine annealing over the epochs of the call, as the
   estimator's default ``lr_schedule="cosine"``), the same loss
   (``MaskedNormalizedMSE``) and batch size, and shuffled batches cut from a
@@ -29,10 +30,10 @@ trained on by
   gathering out of torch's intra-op thread pool, whose parallel regions cost
   milliseconds each on a loaded machine.
 
-Only the training call is timed (not the window preparation, timed apart as
-"prep"). Both variants run in the same process, interleaved (A B, then B A,
-...) ``--repeat`` times per thread count, with ``torch.set_num_threads(n)``
-for both; the ratio of throughputs skorch / plain (plain time over skorch
+Only the training loop is timed (not the window preparation before it,
+timed apart as "prep": ``fit`` up to the first epoch). Both variants run in
+the same process, interleaved (A B, then B A, ...) ``--repeat`` times per
+thread count, with ``torch.set_num_threads(n)`` for both; the ratio of throughputs skorch / plain (plain time over skorch
 time) is computed per interleaved pair and its median is reported, from the
 wall-clock time and from the process CPU time (``time.process_time``, all
 threads), which is less disturbed when other processes share the machine.
@@ -65,7 +66,6 @@ Tables are printed in Markdown.
 
 import argparse
 import copy
-import hashlib
 import json
 import os
 import statistics
@@ -73,22 +73,22 @@ import sys
 import time
 
 import numpy as np
+import skorch
 import torch
-
-from _machine import machine_lines
+from _machine import machine_lines, source_digest
 from sklearn.pipeline import Pipeline
-from skorch import NeuralNet
+from skorch.callbacks import Callback
 
-from skcath import _format as fmt
+import skcath.residuals
+from skcath import ID_COLUMNS
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
 from skcath.metrics import per_run_rmse
 from skcath.residuals import GRUResidual, MaskedNormalizedMSE, MLPResidual
-from skcath.residuals._estimators import _torch_runtime
-from skcath.residuals._features import cut_windows, step_feature_names, sweep_feature_names
 
 MODELS = {"gru": GRUResidual, "mlp": MLPResidual}
 SEED = 0
+CATHETER, SETTING, RUN = ID_COLUMNS
 
 
 # ---------------------------------------------------------------------------
@@ -98,8 +98,8 @@ def _fold(catheter, holdout):
     """Training and held-out recordings of one setting-held-out fold (bent settings)."""
     data = make_benchmark()
     X, y = data.X, data.y
-    bent = (X[fmt.CATHETER] == catheter).to_numpy() & (X[fmt.SETTING] != "S00").to_numpy()
-    test = bent & (X[fmt.SETTING] == holdout).to_numpy()
+    bent = (X[CATHETER] == catheter).to_numpy() & (X[SETTING] != "S00").to_numpy()
+    test = bent & (X[SETTING] == holdout).to_numpy()
     train = bent & ~test
 
     def take(rows):
@@ -112,45 +112,69 @@ def _fold(catheter, holdout):
     return take(train), take(test)
 
 
-def _windows(est, Xb, y):
-    """Training windows as ``fit`` builds them, the step counts, and the prep time."""
-    start = time.perf_counter()
-    X_, y_ = est._check_X(Xb, y)
-    F, motion, sweep, e, _ = est._sequences(X_, y_)
-    est._fit_statistics(F, e)
-    data, target = est._training_windows(X_, motion, sweep)
-    prep_s = time.perf_counter() - start
-    step = est.window_step or max(est.window - est.burn_in, 1)
-    run_index, first = cut_windows(motion.lengths, est.window, step)
-    counts = {
-        "runs": int(len(motion.lengths)),
-        "motion_samples": int(motion.lengths.sum()),
+class TrainingClock(Callback):
+    """skorch callback: the training loop's windows, initial module and time.
+
+    ``on_train_begin`` receives the windows that ``fit`` prepared (inputs
+    and targets) and the freshly initialised module; the wall-clock and
+    process CPU time from there to ``on_train_end`` is the training loop's.
+    """
+
+    def on_train_begin(self, net, X=None, y=None, **kwargs):
+        self.windows, self.target = X, y
+        self.initial_module = copy.deepcopy(net.module_)
+        self.begin = time.perf_counter(), time.process_time()
+
+    def on_train_end(self, net, X=None, y=None, **kwargs):
+        end = time.perf_counter(), time.process_time()
+        self.seconds = end[0] - self.begin[0], end[1] - self.begin[1]
+
+
+def _window_counts(Xb, est, data):
+    """Runs, motion samples, windows and their real and loss steps per epoch.
+
+    The windows of a run tile its motion sequence, the last one aligned to
+    the run's end, so every window is ``window`` steps long except the one
+    window of a run shorter than that, which holds the whole run.
+    """
+    motion = Xb[Xb["phase"] == "motion"]
+    lengths = motion.groupby(RUN, observed=True).size().to_numpy()
+    short = lengths[(lengths > 0) & (lengths < est.window)]
+    n_windows = len(data["features"])
+    return {
+        "runs": int(len(lengths)),
+        "motion_samples": int(lengths.sum()),
         "window": int(est.window),
-        "windows": int(len(run_index)),
-        "window_steps": int(np.minimum(est.window, motion.lengths[run_index] - first).sum()),
+        "windows": int(n_windows),
+        "window_steps": int(n_windows * est.window - (est.window - short).sum()),
         "loss_steps": int(data["mask"].sum()),
     }
-    return data, target, counts, prep_s
+
+
+def _windows(cls, Xb, y):
+    """The windows ``fit`` trains on, the initial module, the counts, and the prep time."""
+    clock = TrainingClock()
+    est = cls(random_state=SEED, max_epochs=0, callbacks=[("clock", clock)])
+    for _ in range(2):  # the second call, without the first call's one-time costs, is timed
+        start = time.perf_counter()
+        est.fit(Xb, y)  # no epoch: prepares the windows and initialises the module
+    prep_s = clock.begin[0] - start
+    return clock.windows, clock.target, clock.initial_module, _window_counts(Xb, est, clock.windows), prep_s
 
 
 # ---------------------------------------------------------------------------
 # the two training loops
 # ---------------------------------------------------------------------------
-def _module_kwargs(est):
-    kwargs = est.get_params_for("module")
-    kwargs.update(
-        n_features=len(step_feature_names(est.use_torque)),
-        n_sweep_features=len(sweep_feature_names(est.use_torque)),
-        use_context=est.use_context,
-    )
-    return kwargs
-
-
-def _initial_state(est, threads):
-    """The estimator's initial weights for ``random_state=SEED`` (as ``fit`` draws them)."""
-    with _torch_runtime(threads, SEED):
-        est.initialize()
-    return copy.deepcopy(est.module_.state_dict())
+def _run_skorch(cls, Xb, y, threads, epochs, module0):
+    """The estimator's own training loop, timed inside ``fit`` by the callback."""
+    clock = TrainingClock()
+    est = cls(random_state=SEED, max_epochs=epochs, n_threads=threads, callbacks=[("clock", clock)])
+    est.fit(Xb, y)
+    for key, value in clock.initial_module.state_dict().items():
+        if not torch.equal(value, module0.state_dict()[key]):
+            raise RuntimeError(f"initial weights differ from the plain loop's ({key})")
+    losses = [float(v) for v in est.history_[:, "train_loss"]]
+    return clock.seconds, losses, est.module_
 
 
 class _Clock:
@@ -163,22 +187,6 @@ class _Clock:
         return time.perf_counter() - self.wall, time.process_time() - self.cpu
 
 
-def _run_skorch(est, data, target, threads, state0):
-    """skorch's training loop on prepared windows, as ``_ResidualNet.fit`` runs it."""
-    with _torch_runtime(threads, SEED):
-        est.initialize()
-    for key, value in est.module_.state_dict().items():
-        if not torch.equal(value, state0[key]):
-            raise RuntimeError(f"initial weights differ from the plain loop's ({key})")
-    # fit() -> partial_fit(): same seed (no history yet), skorch's partial_fit
-    clock = _Clock()
-    with _torch_runtime(threads, SEED):
-        NeuralNet.partial_fit(est, data, target)
-    seconds = clock.stop()
-    losses = [float(v) for v in est.history_[:, "train_loss"]]
-    return seconds, losses, est.module_
-
-
 def _tensors(data, target):
     keys = ["features", "mask"] + [k for k in ("sweep", "sweep_length") if k in data]
     out = {k: torch.from_numpy(np.ascontiguousarray(data[k])) for k in keys}
@@ -186,18 +194,16 @@ def _tensors(data, target):
     return out
 
 
-def _run_plain(est, tensors, threads, state0, epochs, dataloader=False):
-    """Minimal hand-written torch loop: same module class, weights, Adam lr, loss, batches."""
+def _run_plain(est, tensors, threads, module0, epochs, dataloader=False):
+    """Minimal hand-written torch loop: same module, initial weights, Adam lr, loss, batches."""
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        module = est.module(**_module_kwargs(est))
-        module.load_state_dict(state0)
+        module = copy.deepcopy(module0)
         optimizer = torch.optim.Adam(module.parameters(), lr=est.lr)
         scheduler = None
-        if getattr(est, "lr_schedule", "constant") == "cosine":  # the estimator's LRScheduler
-            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
-                optimizer, T_max=max(int(est.max_epochs), 1))
+        if est.lr_schedule == "cosine":  # the estimator's LRScheduler
+            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=max(epochs, 1))
         criterion = MaskedNormalizedMSE()
         context = "sweep" in tensors
         n = len(tensors["features"])
@@ -258,21 +264,20 @@ def throughput(Xb, y, models, threads, epochs, repeat, dataloader):
     rows = []
     for name in models:
         cls = MODELS[name]
-        est = cls(random_state=SEED, max_epochs=epochs)
-        data, target, counts, prep_s = _windows(est, Xb, y)
+        data, target, module0, counts, prep_s = _windows(cls, Xb, y)
         tensors = _tensors(data, target)
+        est = cls(random_state=SEED)  # the settings the plain loop copies (lr, batch, schedule)
         variants = ["skorch", "plain"] + (["plain DataLoader"] if dataloader else [])
         for n in threads:
-            state0 = _initial_state(est, n)
             times = {v: [] for v in variants}
             result = {}
             for r in range(repeat):
                 order = variants if r % 2 == 0 else variants[::-1]
                 for v in order:
                     if v == "skorch":
-                        s, losses, module = _run_skorch(est, data, target, n, state0)
+                        s, losses, module = _run_skorch(cls, Xb, y, n, epochs, module0)
                     else:
-                        s, losses, module = _run_plain(est, tensors, n, state0, epochs,
+                        s, losses, module = _run_plain(est, tensors, n, module0, epochs,
                                                        dataloader=v != "plain")
                     times[v].append(s)
                     result[v] = (losses, module)
@@ -385,20 +390,10 @@ def _fold_table(rows, bb_fit_s):
 
 # ---------------------------------------------------------------------------
 def _machine():
-    import skorch
-
-    import skcath.residuals
-
     lines = machine_lines()
-    folder = os.path.dirname(skcath.residuals.__file__)
-    digest = hashlib.sha1()
-    for name in sorted(os.listdir(folder)):
-        if name.endswith(".py"):
-            with open(os.path.join(folder, name), "rb") as f:
-                digest.update(name.encode() + f.read())
     lines.append(f"torch {torch.__version__} (default intra-op threads {torch.get_num_threads()}), "
                  f"skorch {skorch.__version__}; sha1 of skcath/residuals/*.py "
-                 f"{digest.hexdigest()[:12]}")
+                 f"{source_digest(skcath.residuals)}")
     return lines
 
 
@@ -435,8 +430,8 @@ def main(argv=None):
 
     print("loading the benchmark ...", file=sys.stderr, flush=True)
     train, test = _fold(args.catheter, args.holdout)
-    n_train = train[0][fmt.RUN].nunique()
-    n_test = test[0][fmt.RUN].nunique()
+    n_train = train[0][RUN].nunique()
+    n_test = test[0][RUN].nunique()
     load_before = os.getloadavg()[0]
     wall = time.perf_counter()
 

@@ -5,8 +5,9 @@ resident memory belongs to that mechanism alone), this script
 
 1. times ``make_benchmark(cache=False, mechanism=m)`` (best of ``--repeat``
    calls; 4 catheters x 17 settings x 3 runs = 204 runs by default), and
-   splits that time into the hysteresis time loop (``simulate_transmission``,
-   the only per-sample Python loop) and the rest;
+   splits that time into the hysteresis time loop (the simulator's function
+   ``simulate_transmission``, the only per-sample Python loop) and the rest,
+   by the loop's share of one more generation under :mod:`cProfile`;
 2. records the process's peak resident set size (``ru_maxrss``) after the
    timed calls, then runs one more generation under :mod:`tracemalloc` for
    the peak of Python-level allocations (numpy arrays included);
@@ -23,9 +24,11 @@ The table is printed in Markdown. The target is a generation time of at most
 """
 
 import argparse
+import cProfile
 import gc
 import json
 import os
+import pstats
 import resource
 import subprocess
 import sys
@@ -37,6 +40,8 @@ from _machine import machine_lines
 
 MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 MB = 1024.0**2
+#: The simulator's per-sample time loop, found by name in the profile.
+LOOP_FUNCTION = "simulate_transmission"
 
 
 def _max_rss_mb():
@@ -45,27 +50,30 @@ def _max_rss_mb():
     return rss / 1024.0 if sys.platform != "darwin" else rss / MB
 
 
+def _loop_share(make_benchmark, kwargs):
+    """Share of one generation's time spent in the hysteresis time loop, under cProfile.
+
+    Only Python-level calls are profiled (``builtins=False``). The profiler's
+    cost per call weighs more on the loop's many small steps than on the
+    vectorised rest, so the share somewhat overstates the loop's share of an
+    unprofiled generation.
+    """
+    profiler = cProfile.Profile(builtins=False)
+    profiler.runcall(make_benchmark, cache=False, **kwargs)
+    profile = pstats.Stats(profiler).get_stats_profile()
+    if LOOP_FUNCTION not in profile.func_profiles:
+        raise RuntimeError(f"no function {LOOP_FUNCTION!r} in the profile; update this script")
+    return float(profile.func_profiles[LOOP_FUNCTION].cumtime) / profile.total_tt
+
+
 def _child(args):
     """Measure one mechanism in this (fresh) process; print one JSON line."""
     import numpy as np  # noqa: F401  (imported before the baseline RSS)
 
-    from skcath.datasets import _simulator, make_benchmark
+    from skcath.datasets import make_benchmark
 
     rss_start = _max_rss_mb()
     kwargs = {"n_catheters": args.n_catheters, "n_runs": args.n_runs, "mechanism": args.mechanism}
-
-    # Time the hysteresis loop inside the generation by wrapping the function
-    # the simulator calls (one call per generation, so no measurable overhead).
-    loop_times = []
-    original = _simulator.simulate_transmission
-
-    def timed_transmission(*a, **k):
-        start = time.perf_counter()
-        out = original(*a, **k)
-        loop_times.append(time.perf_counter() - start)
-        return out
-
-    _simulator.simulate_transmission = timed_transmission
     totals = []
     for _ in range(args.repeat):
         start = time.perf_counter()
@@ -75,9 +83,9 @@ def _child(args):
         n_runs = len(bunch.runs)
         del bunch
         gc.collect()
-    _simulator.simulate_transmission = original
     best = int(np.argmin(totals))
     rss_peak = _max_rss_mb()
+    loop_share = _loop_share(make_benchmark, kwargs)
 
     tracemalloc_peak = float("nan")
     if not args.no_tracemalloc:
@@ -107,7 +115,8 @@ def _child(args):
                 "samples": n_samples,
                 "seconds": totals[best],
                 "seconds_all": totals,
-                "loop_seconds": loop_times[best],
+                "loop_seconds": loop_share * totals[best],
+                "loop_share": loop_share,
                 "rss_start_mb": rss_start,
                 "rss_peak_mb": rss_peak,
                 "tracemalloc_peak_mb": tracemalloc_peak,

@@ -33,21 +33,24 @@ Methods, all trained on acquisition 1 of a motor only and tested on its
 acquisitions 2 and 3:
 
 - ``polynomial``: a memoryless least-squares polynomial of the motor
-  position, ``p = P(q)`` (standardised ``q``, ``sklearn`` polynomial
-  features and linear regression), its degree chosen by blocked
-  cross-validation inside acquisition 1;
+  position, ``p = P(q)``
+  (``skcath.backbones.PolynomialBackbone(degree, calibration="fit")``:
+  standardised ``q``, all monomials up to the degree, linear least
+  squares), its degree chosen by blocked cross-validation inside
+  acquisition 1;
 - ``polynomial+MLP``: the polynomial as the backbone (nominal tip
   ``b = P(q)``) and ``skcath.residuals.MLPResidual`` on top;
 - ``polynomial+GRU``: the same with ``skcath.residuals.GRUResidual``.
 
 The polynomial's degree (1-9) and the learners' ``use_torque`` (per motor
 and learner, :data:`DEFAULT_GRID`) are chosen on acquisition 1 alone: its
-motion rows are cut into 20 contiguous blocks, and each of two folds hides
-the targets of every other block (set to NaN, which the polynomial and the
-learners skip as tracker dropouts) and scores the errors there, with the
-motor signals of the whole acquisition as input. The other learner settings
-(:data:`BASE_LEARNER`, 200 epochs) were fixed beforehand. The test
-acquisitions are never used for a choice.
+motion rows are cut into 20 contiguous blocks, and each of two folds
+(``sklearn.model_selection.PredefinedSplit``; the grid is a
+``ParameterGrid``) hides the targets of every other block (set to NaN,
+which the polynomial and the learners skip as tracker dropouts) and scores
+the errors there, with the motor signals of the whole acquisition as input.
+The other learner settings (:data:`BASE_LEARNER`, 200 epochs) were fixed
+beforehand. The test acquisitions are never used for a choice.
 
 Acquisition 3 of motor 2 is a copy of acquisition 1 (the script compares the
 arrays); its row is reported and flagged ``leaks_training``, and left out of
@@ -66,7 +69,6 @@ Results are printed as tables and written as CSV to ``--out`` (default
 from __future__ import annotations
 
 import argparse
-import itertools
 import os
 import sys
 import tempfile
@@ -77,15 +79,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
-from sklearn.base import BaseEstimator, TransformerMixin
-from sklearn.linear_model import LinearRegression
-from sklearn.pipeline import Pipeline, make_pipeline
-from sklearn.preprocessing import PolynomialFeatures, StandardScaler
-from sklearn.utils.validation import check_is_fitted
+from sklearn.model_selection import ParameterGrid, PredefinedSplit
+from sklearn.pipeline import Pipeline
 
-from skcath import _format as fmt
-from skcath import check_recordings
-from skcath.backbones import BACKBONE_COLUMNS
+from skcath import MOTOR_COLUMNS
+from skcath.backbones import PolynomialBackbone
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording
 from skcath.metrics import per_run_rmse
@@ -244,74 +242,6 @@ def load_motor(folder, motor, n_sweep=10):
 
 
 # ---------------------------------------------------------------------------
-# the memoryless polynomial, usable as a backbone
-# ---------------------------------------------------------------------------
-class MotorPolynomial(TransformerMixin, BaseEstimator):
-    """Memoryless polynomial ``p = P(q)`` of the motor angles, fitted by least squares.
-
-    Unlike the sweep-calibrated backbones, it is fitted once in ``fit`` on all
-    training rows with a finite target (sweep and motion) and then applied
-    unchanged: ``q`` (both motor columns) is standardised, expanded into all
-    monomials up to ``degree`` and mapped linearly to the three tip
-    coordinates (mm). ``transform`` appends the nominal tip ``b_x, b_y,
-    b_z``, so that a residual learner can follow it in a ``Pipeline``.
-
-    Parameters
-    ----------
-    degree : int, default=3
-        Largest total degree of the monomials of ``q1, q2``.
-    """
-
-    def __init__(self, degree=3):
-        self.degree = degree
-
-    def fit(self, X, y):
-        """Fit the polynomial on the rows of ``X`` whose ``y`` is finite.
-
-        Parameters
-        ----------
-        X : pandas.DataFrame
-            Recordings with the motor columns ``q1, q2``.
-        y : array-like of shape (n_samples, 3)
-            Tip positions (mm); NaN rows are skipped.
-
-        Returns
-        -------
-        self : object
-        """
-        if not (isinstance(self.degree, (int, np.integer)) and self.degree >= 1):
-            raise ValueError(f"degree must be an integer >= 1; got {self.degree!r}.")
-        if y is None:
-            raise ValueError("MotorPolynomial needs the tip positions y to fit on.")
-        X, y = check_recordings(X, y)
-        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-        keep = np.isfinite(y).all(axis=1)
-        if keep.sum() <= self.degree:
-            raise ValueError(
-                f"MotorPolynomial needs more than degree={self.degree} rows with a finite "
-                f"target; got {int(keep.sum())}."
-            )
-        self.model_ = make_pipeline(
-            StandardScaler(), PolynomialFeatures(self.degree), LinearRegression()
-        ).fit(q[keep], y[keep])
-        return self
-
-    def predict(self, X):
-        """Polynomial tip ``P(q)`` (mm) of every row, shape (n_samples, 3)."""
-        check_is_fitted(self)
-        X, _ = check_recordings(X)
-        return self.model_.predict(X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64))
-
-    def transform(self, X):
-        """A copy of ``X`` with the nominal tip ``b_x, b_y, b_z`` (mm) appended."""
-        b = self.predict(X)
-        Xt = X.copy()
-        for k, name in enumerate(BACKBONE_COLUMNS):
-            Xt[name] = b[:, k]
-        return Xt
-
-
-# ---------------------------------------------------------------------------
 # models and selection
 # ---------------------------------------------------------------------------
 #: Learner settings fixed for this data set (one short run of ~1,150-1,430
@@ -334,8 +264,8 @@ DEFAULT_CONFIG = {"max_epochs": 200, "use_torque": True}
 
 
 def make_method(method, degree, config, seed):
-    """The estimator of ``method``: a ``MotorPolynomial`` or a Pipeline with a residual."""
-    backbone = MotorPolynomial(degree)
+    """The estimator of ``method``: the polynomial backbone, or a Pipeline with a residual."""
+    backbone = PolynomialBackbone(degree, calibration="fit")
     if method == "polynomial":
         return backbone
     cls = {"polynomial+MLP": MLPResidual, "polynomial+GRU": GRUResidual}[method]
@@ -365,38 +295,42 @@ def first_leg(X):
     -------
     rows : ndarray of bool, shape (n_samples,)
     """
-    q = X[fmt.MOTOR_COLUMNS[0]].to_numpy(dtype=np.float64)
+    q = X[MOTOR_COLUMNS[0]].to_numpy(dtype=np.float64)
     rows = np.zeros(len(X), dtype=bool)
     rows[: int(np.argmax(q)) + 1] = True
     return rows
 
 
 def block_folds(X, n_folds=2, n_blocks_per_fold=10):
-    """Held-out row masks of the blocked cross-validation inside one run.
+    """Blocked cross-validation inside one run, as a ``PredefinedSplit``.
 
     The motion rows are cut into ``n_folds * n_blocks_per_fold`` contiguous
     blocks of (nearly) equal length; fold ``k`` holds out the blocks ``k,
-    k + n_folds, ...``.
+    k + n_folds, ...``. Sweep rows are never held out.
 
     Returns
     -------
-    folds : list of ndarray of bool, shape (n_samples,)
+    cv : sklearn.model_selection.PredefinedSplit
+        Its ``split()`` gives the row positions of each fold's training and
+        held-out rows.
     """
-    motion = np.flatnonzero((X[fmt.PHASE] == fmt.MOTION).to_numpy())
-    blocks = np.array_split(motion, n_folds * n_blocks_per_fold)
-    folds = []
-    for k in range(n_folds):
-        held = np.zeros(len(X), dtype=bool)
-        for block in blocks[k::n_folds]:
-            held[block] = True
-        folds.append(held)
-    return folds
+    motion = np.flatnonzero((X["phase"] == "motion").to_numpy())
+    test_fold = np.full(len(X), -1)
+    for b, block in enumerate(np.array_split(motion, n_folds * n_blocks_per_fold)):
+        test_fold[block] = b % n_folds
+    return PredefinedSplit(test_fold)
 
 
 def cv_rmse(method, X, y, degree, config, seed, folds):
-    """Mean held-out RMSE (mm) of ``method`` over the blocked folds of one run."""
+    """Mean held-out RMSE (mm) of ``method`` over the blocked folds of one run.
+
+    The training targets of a fold's held-out rows are set to NaN; the input
+    is the whole run, so that every model sees an unbroken time series.
+    """
     scores = []
-    for held in folds:
+    for _, test in folds.split():
+        held = np.zeros(len(X), dtype=bool)
+        held[test] = True
         y_train = np.array(y, dtype=np.float64)
         y_train[held] = np.nan
         model = make_method(method, degree, config, seed).fit(X, y_train)
@@ -427,17 +361,11 @@ def _settings(config):
     return ", ".join(f"{k}={v}" for k, v in config.items())
 
 
-def grid_configs(grid):
-    """All combinations of a parameter grid, as a list of dicts."""
-    keys = list(grid)
-    return [dict(zip(keys, values)) for values in itertools.product(*(grid[k] for k in keys))]
-
-
 def select_config(method, X, y, degree, grid, seed=0, folds=None):
     """Learner settings with the lowest blocked-CV RMSE inside the training run."""
     folds = block_folds(X) if folds is None else folds
     rows = []
-    for config in grid_configs(grid):
+    for config in ParameterGrid(grid):
         rows.append({**config, "cv_rmse_mm": cv_rmse(method, X, y, degree, config, seed, folds)})
     table = pd.DataFrame(rows)
     best = table.loc[table["cv_rmse_mm"].idxmin(), list(grid)].to_dict()
@@ -544,7 +472,7 @@ def run_benchmark(
                         "motor": motor,
                         "test_acquisition": a,
                         "leaks_training": data.copy_of_training[a],
-                        "n_motion": int((X[fmt.PHASE] == fmt.MOTION).sum()),
+                        "n_motion": int((X["phase"] == "motion").sum()),
                         "method": method,
                         "seed": seed,
                         "start_offset_mm": float(np.linalg.norm(y[0] - y1[0])),

@@ -58,13 +58,15 @@ from scipy.special import erf
 from scipy.stats import norm, spearmanr
 from sklearn.pipeline import Pipeline
 
-from skcath import _format as fmt
+from skcath import ID_COLUMNS
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
 from skcath.ensemble import SeedEnsembleRegressor, coverage
 from skcath.metrics import mean_per_run_rmse, per_run_rmse
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual
+
+CATHETER, SETTING, RUN = ID_COLUMNS
 
 K = (1.0, 2.0)
 
@@ -84,7 +86,7 @@ def _first_fold(X):
 
 
 def _settings(X):
-    return sorted(X[fmt.SETTING].astype(str).unique())
+    return sorted(X[SETTING].astype(str).unique())
 
 
 def _pipeline(args):
@@ -98,7 +100,7 @@ def _pipeline(args):
 
 
 def _fit(args, X, y, label):
-    print(f"fitting {label} ({X[fmt.RUN].nunique()} runs) ...", file=sys.stderr, flush=True)
+    print(f"fitting {label} ({X[RUN].nunique()} runs) ...", file=sys.stderr, flush=True)
     start = time.perf_counter()
     pipe = _pipeline(args).fit(X, y)
     return pipe, time.perf_counter() - start
@@ -143,7 +145,7 @@ def main(argv=None):
 
     print("loading the benchmark ...", file=sys.stderr, flush=True)
     data = make_benchmark()
-    c1 = np.flatnonzero((data.X[fmt.CATHETER] == "C1").to_numpy())
+    c1 = np.flatnonzero((data.X[CATHETER] == "C1").to_numpy())
     X_all, y_all = _take(data.X, np.asarray(data.y), c1)
     train_rows, test_rows = _first_fold(X_all)
     X, y = _take(X_all, y_all, train_rows)
@@ -151,16 +153,16 @@ def main(argv=None):
 
     pipe, fit_s = _fit(args, X, y, "the ensemble")
     members, mean, std, Xb_test = _predict(pipe, X_test)
-    motion = (X_test[fmt.PHASE] == fmt.MOTION).to_numpy()
-    runs = X_test[fmt.RUN].astype(str).to_numpy()[motion]
+    motion = (X_test["phase"] == "motion").to_numpy()
+    runs = X_test[RUN].astype(str).to_numpy()[motion]
 
     nominal = Xb_test[["b_x", "b_y", "b_z"]].to_numpy()
     member_rmse = [mean_per_run_rmse(y_test, m, X_test) for m in members]
     result = {
         "test_settings": _settings(X_test),
         "train_settings": _settings(X),
-        "n_train_runs": int(X[fmt.RUN].nunique()),
-        "n_test_runs": int(X_test[fmt.RUN].nunique()),
+        "n_train_runs": int(X[RUN].nunique()),
+        "n_test_runs": int(X_test[RUN].nunique()),
         "n_test_motion_rows": int(motion.sum()),
         "fit_s": fit_s,
         "rmse_pdl": mean_per_run_rmse(y_test, nominal, X_test),
@@ -176,7 +178,7 @@ def main(argv=None):
         X_val, y_val = _take(X, y, valid)
         pipe_in, fit_in_s = _fit(args, X_in, y_in, "the validation ensemble")
         _, mean_v, std_v, _ = _predict(pipe_in, X_val)
-        mv = (X_val[fmt.PHASE] == fmt.MOTION).to_numpy()
+        mv = (X_val["phase"] == "motion").to_numpy()
         z_v = np.abs(y_val[mv] - mean_v[mv]) / std_v[mv]
         scale = float(np.nanquantile(z_v, erf(1.0 / np.sqrt(2.0))))
         result.update(
@@ -186,7 +188,7 @@ def main(argv=None):
             scale=scale,
             validation_raw=_calibration_row(
                 "validation: raw", y_val[mv], mean_v[mv], std_v[mv],
-                X_val[fmt.RUN].astype(str).to_numpy()[mv],
+                X_val[RUN].astype(str).to_numpy()[mv],
             ),
         )
         rows.append(_calibration_row(f"test: scaled by s = {scale:.2f}", yt, mu, scale * sd, runs))

@@ -7,14 +7,16 @@ measures that unit-to-unit spread on many simulated units and relates it to
 the parameters of each unit:
 
 1. **Units.** ``--n-catheters`` units are drawn exactly as the benchmark
-   draws them (``skcath.datasets._benchmark.benchmark_specs`` with
-   ``--random-state``), numbered ``C5``, ``C6``, ... so that they never
-   coincide with ``C1``-``C4`` of the benchmark of the same seed. Each unit
-   is simulated in the 16 bent shaft settings, ``--n-runs`` runs each, with
-   the benchmark's run seeds and tracker field (the straight setting is not
-   scored, as in ``bench_backbones.py``). ``C1``-``C4`` are simulated too,
-   with the benchmark's three runs per setting, as reference: with
-   ``--random-state 0`` their runs are those of the default benchmark.
+   draws them (``skcath.datasets.benchmark_catheter`` with
+   ``--random-state`` and ``--unit-spread``), numbered ``C5``, ``C6``, ... so
+   that they never coincide with ``C1``-``C4`` of the benchmark of the same
+   seed. Each unit is simulated with
+   ``make_benchmark(catheters=[unit], n_runs=--n-runs)``, i.e. in the
+   benchmark's runs of that unit and its tracker field; the runs of the 16
+   bent shaft settings are scored (the straight setting is not, as in
+   ``bench_backbones.py``). ``C1``-``C4`` are simulated too, with the
+   benchmark's three runs per setting, as reference: with ``--random-state
+   0`` their runs are those of the default benchmark.
 2. **Backbone error.** PCC and PDL are calibrated on each run's own sweep and
    scored on its motion rows exactly as ``bench_backbones.py`` does; a unit's
    error is the mean of its per-run RMSE (mm). The tip excursion ``tip_rms``
@@ -36,7 +38,8 @@ the parameters of each unit:
 4. **One at a time.** For ``C1`` and ``C2`` of the benchmark (run ``R1`` of
    each bent setting), every physical feature in turn is set to the family's
    mid-range value ``m`` with ``dataclasses.replace`` on the unit, on the
-   same runs; the largest changes of the unit's PDL error are printed. ``m``
+   same runs (the changed unit keeps its name, and so its runs); the
+   largest changes of the unit's PDL error are printed. ``m``
    is the median over 4000 draws of ``sample_catheter`` (for the mean gain,
    the four gains are scaled to the family's median mean gain; for the gain
    spread, the four gains are set to their own mean).
@@ -71,13 +74,12 @@ passes, 7 CPU-minutes, 4 wall-clock minutes with ``--n-jobs 2`` on an idle
 
 import argparse
 import dataclasses
-import hashlib
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from _machine import machine_lines
+from _machine import machine_lines, source_digest
 from joblib import Parallel, delayed
 from scipy.spatial.transform import Rotation
 from scipy.stats import spearmanr
@@ -88,11 +90,9 @@ from sklearn.model_selection import LeaveOneOut, cross_val_predict
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from skcath import datasets
+import skcath.datasets
 from skcath.backbones import PCCBackbone, PDLBackbone
-from skcath.datasets import sample_catheter
-from skcath.datasets._benchmark import _benchmark_field, benchmark_specs
-from skcath.datasets._simulator import simulate_runs
+from skcath.datasets import benchmark_catheter, make_benchmark, sample_catheter
 from skcath.metrics import per_run_rmse
 
 #: Per-catheter backbone RMSE of the paper's real units (mm).
@@ -229,10 +229,10 @@ def feature_table(catheters):
     )
 
 
-def family_mid(random_state):
+def family_mid(random_state, unit_spread):
     """Mid-range value of every parameter: the median over many draws of the family."""
     root = np.random.SeedSequence([random_state, 10**6 + 1])
-    draws = [sample_catheter(seed) for seed in root.spawn(N_FAMILY_DRAWS)]
+    draws = [sample_catheter(seed, unit_spread=unit_spread) for seed in root.spawn(N_FAMILY_DRAWS)]
     mid = {}
     for field in dataclasses.fields(draws[0]):
         values = [getattr(c, field.name) for c in draws]
@@ -243,38 +243,40 @@ def family_mid(random_state):
 
 
 # --------------------------------------------------------------------------- scoring
-def score_runs(specs, random_state):
-    """Per-run PCC and PDL RMSE and tip excursion (mm) over the motion rows of the given runs.
+def score_runs(unit, n_runs, random_state):
+    """Per-run PCC and PDL RMSE and tip excursion (mm) of one unit's bent-setting runs.
 
+    The unit is recorded in the benchmark's runs of the unit with its name
+    (``n_runs`` per setting); the runs of the straight setting are left out.
     ``tip_rms`` is the RMS distance of the measured tip from its mean position
     over the motion rows of the run: how far the tip travels.
     """
-    data = simulate_runs(specs, field=_benchmark_field(random_state))
-    out = data.runs[["run", "catheter", "repeat"]].set_index("run")
+    data = make_benchmark(n_runs=n_runs, random_state=random_state, catheters=[unit], cache=False)
+    bent = data.runs[data.runs["bend_level"] != "straight"]
+    rows = data.X["run"].isin(bent["run"]).to_numpy()
+    X, y = data.X[rows].reset_index(drop=True), data.y[rows]
+    out = bent[["run", "catheter", "repeat"]].set_index("run")
     for name, est in (("PCC", PCCBackbone(n_jobs=1)), ("PDL", PDLBackbone(n_jobs=1))):
-        nominal = est.fit(data.X).predict(data.X)
-        out[name] = per_run_rmse(data.y, nominal, data.X).loc[out.index]
-    motion = (data.X["phase"] == "motion").to_numpy()
-    tip = pd.DataFrame(data.y[motion], columns=["x", "y", "z"])
-    tip["run"] = data.X["run"].to_numpy()[motion]
+        nominal = est.fit(X).predict(X)
+        out[name] = per_run_rmse(y, nominal, X).loc[out.index]
+    motion = (X["phase"] == "motion").to_numpy()
+    tip = pd.DataFrame(y[motion], columns=["x", "y", "z"])
+    tip["run"] = X["run"].to_numpy()[motion]
     out["tip_rms"] = tip.groupby("run", observed=True)[["x", "y", "z"]].var(ddof=0).sum(axis=1).pow(0.5)
     return out
 
 
-def score_units(groups, random_state, n_jobs):
-    """Per-run scores of several groups of runs (one group per unit), in parallel."""
-    tables = Parallel(n_jobs=n_jobs)(delayed(score_runs)(g, random_state) for g in groups)
+def score_units(jobs, random_state, n_jobs):
+    """Per-run scores of several units, each given as ``(unit, n_runs)``, in parallel."""
+    tables = Parallel(n_jobs=n_jobs)(
+        delayed(score_runs)(unit, n_runs, random_state) for unit, n_runs in jobs
+    )
     return pd.concat(tables)
 
 
 def per_unit(table):
     """Mean over the runs of each unit (mm)."""
     return table.groupby("catheter", sort=False)[["PCC", "PDL", "tip_rms"]].mean()
-
-
-def replace_catheter(specs, catheter):
-    """The same runs with another catheter unit."""
-    return [dataclasses.replace(s, catheter=catheter) for s in specs]
 
 
 def spread(values, random_state=0, n_draws=20000):
@@ -354,11 +356,13 @@ def main():
                         help="stop after the driver ranking (no one-at-a-time, no narrowing)")
     parser.add_argument("--n-jobs", type=int, default=1)
     parser.add_argument("--random-state", type=int, default=0)
+    parser.add_argument("--unit-spread", type=float, default=0.35,
+                        help="unit_spread of the drawn family (1: simulator version 5; default 0.35)")
     args = parser.parse_args()
     if args.n_catheters < 8 or args.n_runs < 1 or args.n_drivers < 1:
         parser.error("--n-catheters must be >= 8, --n-runs and --n-drivers >= 1")
-    if not 0.0 <= args.narrow_factor <= 1.0:
-        parser.error("--narrow-factor must be in [0, 1]")
+    if not (0.0 <= args.narrow_factor <= 1.0 and 0.0 <= args.unit_spread <= 1.0):
+        parser.error("--narrow-factor and --unit-spread must be in [0, 1]")
     # features with a mid-range value; |x| is left out where x itself is a feature (same change)
     shrinkable = [f for f, (_, _, shrink) in FEATURES.items() if shrink is not None and f not in CONTROLS
                   and not (f.startswith("|") and f.strip("|") in FEATURES)]
@@ -369,22 +373,19 @@ def main():
     start = time.perf_counter()
     print("\n".join(machine_lines()))
     print(f"arguments: {vars(args)}")
-    sources = sorted(Path(datasets.__file__).parent.glob("*.py"))
-    digest = hashlib.sha1(b"".join(p.read_bytes() for p in sources)).hexdigest()[:12]
-    print(f"simulator: {Path(datasets.__file__).parent}, SIMULATOR_VERSION {datasets.SIMULATOR_VERSION}, "
-          f"sha1 of its sources {digest}")
+    simulator = skcath.datasets
+    print(f"simulator: {Path(simulator.__file__).parent}, SIMULATOR_VERSION {simulator.SIMULATOR_VERSION}, "
+          f"sha1 of its sources {source_digest(simulator)}")
 
     n_total = N_REFERENCE + args.n_catheters
-    specs = [s for s in benchmark_specs(n_total, max(args.n_runs, N_REFERENCE_RUNS), args.random_state)
-             if s.setting.level != "straight"]
-    names = list(dict.fromkeys(s.catheter.name for s in specs))
+    units = {f"C{k}": benchmark_catheter(k, args.random_state, unit_spread=args.unit_spread)
+             for k in range(1, n_total + 1)}
+    names = list(units)
     reference, drawn = names[:N_REFERENCE], names[N_REFERENCE:]
-    groups = {name: [s for s in specs if s.catheter.name == name
-                     and (name in reference or s.repeat <= args.n_runs)] for name in names}
-    units = {name: groups[name][0].catheter for name in names}
+    n_runs = {name: N_REFERENCE_RUNS if name in reference else args.n_runs for name in names}
 
     # 1-2. per-unit backbone error
-    runs = score_units([groups[n] for n in names], args.random_state, args.n_jobs)
+    runs = score_units([(units[n], n_runs[n]) for n in names], args.random_state, args.n_jobs)
     errors = per_unit(runs)
     errors["PDL / tip_rms"] = errors["PDL"] / errors["tip_rms"]
     ref = errors.loc[reference].copy()
@@ -435,18 +436,19 @@ def main():
         return
 
     # 4. one at a time on C1 and C2: every physical feature in turn at mid-range
-    mid = family_mid(args.random_state)
+    mid = family_mid(args.random_state, args.unit_spread)
     drivers = chosen or [f for f in ranking.index if f in shrinkable][: args.n_drivers]
     one = ["C1", "C2"]
-    first = {name: [s for s in groups[name] if s.repeat == 1] for name in one}
     base = per_unit(runs[runs["catheter"].isin(one) & (runs["repeat"] == 1)])
     jobs, labels = [], []
     for name in one:
         for feature in shrinkable:
             cat = FEATURES[feature][2](units[name], 0.0, mid)
-            jobs.append(replace_catheter(first[name], cat))
+            jobs.append((cat, 1))  # run R1 of every setting
             labels.append((name, feature, FEATURES[feature][1](units[name]), FEATURES[feature][1](cat)))
-    moved = Parallel(n_jobs=args.n_jobs)(delayed(score_runs)(g, args.random_state) for g in jobs)
+    moved = Parallel(n_jobs=args.n_jobs)(
+        delayed(score_runs)(unit, n, args.random_state) for unit, n in jobs
+    )
     rows = []
     for (name, feature, before, after), table in zip(labels, moved):
         rows.append({"unit": name, "feature": feature, "value": before, "mid-range": after,
@@ -469,13 +471,13 @@ def main():
     f = args.narrow_factor
     rows = {"as drawn": spread(err["PDL"], rs)}
     for k in range(1, len(drivers) + 1):
-        groups_n = []
+        jobs = []
         for name in drawn:
             cat = units[name]
             for d in drivers[:k]:
                 cat = FEATURES[d][2](cat, f, mid)
-            groups_n.append(replace_catheter(groups[name], cat))
-        narrowed = per_unit(score_units(groups_n, args.random_state, args.n_jobs))
+            jobs.append((cat, args.n_runs))
+        narrowed = per_unit(score_units(jobs, args.random_state, args.n_jobs))
         rows[" + ".join(drivers[:k])] = spread(narrowed["PDL"], rs)
     _print(f"Predicted per-unit PDL RMSE spread with the drivers' ranges narrowed to {f:g} of their width "
            f"(x -> m + {f:g} (x - m); same {len(drawn)} units and runs; mm)", pd.DataFrame(rows).T)

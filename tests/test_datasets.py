@@ -20,15 +20,16 @@ from skcath._validation import check_recordings
 from skcath.datasets import (
     SIMULATOR_VERSION,
     Catheter,
+    benchmark_catheter,
     clear_data_home,
     get_data_home,
     make_benchmark,
     sample_catheter,
+    setting_parameters,
     shaft_settings,
     simulate_run,
 )
 from skcath.datasets import _benchmark
-from skcath.datasets._catheter import configure
 from skcath.datasets._protocol import (
     constant_speed,
     min_jerk,
@@ -406,7 +407,7 @@ def test_no_load_play_width_follows_each_pair_wrap():
     settings = {s.name: s for s in shaft_settings()}
     for seed in range(5):
         cat = sample_catheter(seed)
-        w0 = {name: np.asarray(configure(cat, s)["w0"], dtype=float) for name, s in settings.items()}
+        w0 = {name: np.asarray(setting_parameters(cat, s)["w0"], dtype=float) for name, s in settings.items()}
         assert all(w.shape == (2,) for w in w0.values())
         assert np.all(np.concatenate(list(w0.values())) > 0)
         # straight: both pairs alike, below the width at one radian (30 deg of wrap)
@@ -431,8 +432,8 @@ def test_no_load_play_width_follows_each_pair_wrap():
 
 
 def test_transmission_receives_the_per_pair_play_width():
-    specs = _benchmark.benchmark_specs(1, 1, 0, False)
-    configs = [configure(spec.catheter, spec.setting) for spec in specs]
+    specs = _benchmark.benchmark_specs([benchmark_catheter(1)], 1, 0, False)
+    configs = [setting_parameters(spec.catheter, spec.setting) for spec in specs]
     params = _transmission_params(specs, configs)
     assert params["w0"].shape == (len(specs), 2)
     assert_array_equal(params["w0"], np.array([c["w0"] for c in configs]))
@@ -841,3 +842,127 @@ def test_unit_spread_narrows_the_unit_parameters_but_not_the_set_up():
     assert phases.max() - phases.min() > 0.9 * 2 * np.pi
     offsets = np.concatenate([c.offsets for c in cats])
     assert 1.2 < offsets.std() < 1.8
+
+
+def test_unit_spread_pulls_every_narrowed_parameter_towards_the_middle():
+    # the same random numbers at every spread: 1 keeps the whole family
+    # range (simulator version 5), 0 puts the unit at the middle
+    whole = sample_catheter(4, unit_spread=1.0)
+    default = sample_catheter(4)
+    middle = sample_catheter(4, unit_spread=0.0)
+    assert middle.length == pytest.approx(42.0) and middle.mu == pytest.approx(0.15)
+    assert default.length == pytest.approx(42.0 + 0.35 * (whole.length - 42.0))
+    assert default.play_w0 == pytest.approx(4.0 + 0.35 * (whole.play_w0 - 4.0))
+    # kept whole at every spread: offsets, routing phases, mount
+    for cat in (default, middle):
+        assert_array_equal(cat.offsets, whole.offsets)
+        assert_array_equal(cat.route_phases, whole.route_phases)
+        assert_array_equal(cat.mount_rotvec, whole.mount_rotvec)
+    # the differences between the four tendon gains are kept, their mean narrowed
+    assert_allclose(default.gains - default.gains.mean(), whole.gains - whole.gains.mean())
+    assert abs(middle.gains.mean() - np.deg2rad(3.2)) < 1e-12
+    with pytest.raises(ValueError, match="unit_spread"):
+        sample_catheter(4, unit_spread=1.5)
+
+
+def test_benchmark_catheter_is_the_benchmarks_unit(small_benchmark):
+    unit = benchmark_catheter(1)
+    assert unit.name == "C1"
+    assert unit.to_dict() == small_benchmark.catheters["C1"]
+    assert benchmark_catheter(2).to_dict() != unit.to_dict()
+    wide = benchmark_catheter(1, unit_spread=1.0)
+    assert wide.length != unit.length
+    for bad in (0, True, 1.5):
+        with pytest.raises(ValueError, match="number"):
+            benchmark_catheter(bad)
+
+
+def test_given_catheters_run_the_benchmarks_runs_of_their_names(small_benchmark):
+    unit = benchmark_catheter(1)
+    again = make_benchmark(n_runs=1, catheters=[unit], cache=False)
+    _assert_same_data(again, small_benchmark)
+    assert "catheters" in again.key
+    # a changed copy of the unit: same runs (motor angles, torque noise
+    # draws, sweeps), other tip positions
+    longer = make_benchmark(
+        n_runs=1, catheters=[dataclasses.replace(unit, length=unit.length + 4.0)], cache=False
+    )
+    assert_array_equal(longer.X[["t", "q1", "q2"]], small_benchmark.X[["t", "q1", "q2"]])
+    assert not np.allclose(longer.y_true, small_benchmark.y_true)
+    # the unit named C2 gets the runs of the benchmark's second unit
+    renamed = make_benchmark(
+        n_runs=1, catheters=[dataclasses.replace(unit, name="C2")], cache=False
+    )
+    assert not np.array_equal(renamed.X["q1"].to_numpy()[:500], small_benchmark.X["q1"].to_numpy()[:500])
+
+
+@pytest.mark.parametrize(
+    "catheters, error, match",
+    [
+        ([], ValueError, "at least one"),
+        (["C1"], TypeError, "Catheter"),
+        ([dataclasses.replace(sample_catheter(0), name="unit-a")], ValueError, "'C1', 'C2'"),
+        ([sample_catheter(0, "C3"), sample_catheter(1, "C3")], ValueError, "own name"),
+    ],
+)
+def test_make_benchmark_rejects_bad_catheters(catheters, error, match, tmp_path):
+    with pytest.raises(error, match=match):
+        make_benchmark(n_runs=1, catheters=catheters, data_home=tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
+def test_run_variation_changes_only_the_given_variation(small_benchmark, tmp_path):
+    calm = make_benchmark(
+        n_catheters=1, n_runs=1, run_variation={"gain_drift": 0.0, "offset_drift_deg": 0.0},
+        data_home=tmp_path,
+    )
+    # the runs keep their random numbers: same protocols, other tips
+    assert_array_equal(calm.X[["t", "q1", "q2"]], small_benchmark.X[["t", "q1", "q2"]])
+    assert not np.allclose(calm.y_true, small_benchmark.y_true)
+    assert calm.key["run_variation"] == {"gain_drift": 0.0, "offset_drift_deg": 0.0}
+    # a different cache file from the default benchmark's
+    default = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    assert "run_variation" not in default.key
+    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+    # giving the default values is the default benchmark
+    same = make_benchmark(n_catheters=1, n_runs=1, run_variation={"gain_drift": 0.03}, cache=False)
+    _assert_same_data(same, small_benchmark)
+
+
+@pytest.mark.parametrize(
+    "run_variation, match",
+    [
+        ({"gain_drfit": 0.0}, "unknown key"),
+        ({"gain_drift": -0.1}, r"run_variation\['gain_drift'\]"),
+        ({"gain_drift_tau_s": 0.0}, "time constant"),
+        ({"offset_jitter_deg": "1"}, "offset_jitter_deg"),
+        ({"base_position_mm": np.inf}, "base_position_mm"),
+    ],
+)
+def test_make_benchmark_rejects_bad_run_variation(run_variation, match, tmp_path):
+    with pytest.raises(ValueError, match=match):
+        make_benchmark(n_catheters=1, n_runs=1, run_variation=run_variation, data_home=tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
+def test_unit_spread_keys_the_cache(tmp_path, monkeypatch):
+    calls = _count_simulations(monkeypatch)
+    wide = make_benchmark(n_catheters=1, n_runs=1, unit_spread=1.0, data_home=tmp_path)
+    assert wide.key["unit_spread"] == 1.0
+    assert wide.catheters["C1"] == benchmark_catheter(1, unit_spread=1.0).to_dict()
+    make_benchmark(n_catheters=1, n_runs=1, unit_spread=1.0, data_home=tmp_path)
+    assert len(calls) == 1
+    default = make_benchmark(n_catheters=1, n_runs=1, unit_spread=0.35, data_home=tmp_path)
+    assert "unit_spread" not in default.key and len(calls) == 2
+
+
+def test_setting_parameters_of_a_unit():
+    settings = {s.name: s for s in shaft_settings()}
+    cat = benchmark_catheter(1)
+    straight, bent = setting_parameters(cat, settings["S00"]), setting_parameters(cat, settings["S09"])
+    assert set(straight) == set(bent)
+    # a bent shaft wraps the tendons more: wider dead zone and play
+    assert (bent["dead_zone"] > straight["dead_zone"]).all()
+    assert (bent["w0"] > straight["w0"]).all()
+    with pytest.raises(ValueError, match="setting"):
+        setting_parameters(cat, "S09")

@@ -16,8 +16,14 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from skcath.datasets import MECHANISMS, make_benchmark, sample_catheter, shaft_settings
-from skcath.datasets._catheter import TENDON_AZIMUTHS, configure
+from skcath.datasets import (
+    MECHANISMS,
+    make_benchmark,
+    sample_catheter,
+    setting_parameters,
+    shaft_settings,
+)
+from skcath.datasets._catheter import TENDON_AZIMUTHS
 from skcath.datasets._hysteresis import PLAY_ELEMENTS, simulate_transmission, torsional_windup
 from skcath.datasets._kinematics import (
     bend_from_inputs,
@@ -633,7 +639,7 @@ def test_each_tendon_pair_has_its_own_wrap():
     cat = sample_catheter(0)
     settings = {s.name: s for s in shaft_settings()}
     r = cat.wrap_routing
-    straight = configure(cat, settings["S00"])
+    straight = setting_parameters(cat, settings["S00"])
     theta = settings["S00"].wrap
     assert_allclose(straight["capstan_exponent"], [cat.mu * theta] * 2, rtol=1e-12)
     assert straight["growth"][0] == straight["growth"][1]
@@ -641,7 +647,7 @@ def test_each_tendon_pair_has_its_own_wrap():
     # S01 / S09: shaft bent towards +x, the plane of pair 1; S03: towards +y
     for name, bent_axis in (("S01", 0), ("S03", 1), ("S09", 0), ("S11", 1)):
         s = settings[name]
-        cfg = configure(cat, s)
+        cfg = setting_parameters(cat, s)
         other = 1 - bent_axis
         expected = cat.mu * s.wrap * np.where(np.arange(2) == bent_axis, 1 + r, 1 - r)
         assert_allclose(cfg["capstan_exponent"], expected, rtol=1e-12)
@@ -650,10 +656,10 @@ def test_each_tendon_pair_has_its_own_wrap():
         assert cfg["windup"] == pytest.approx(cat.windup * (1 + s.wrap / np.pi), rel=1e-12)
     # bent at 45 deg, both pairs are wrapped alike
     for name in ("S02", "S10"):
-        cfg = configure(cat, settings[name])
+        cfg = setting_parameters(cat, settings[name])
         assert_allclose(cfg["capstan_exponent"], [cat.mu * settings[name].wrap] * 2, rtol=1e-12)
     # a high bend grows the friction of both pairs beyond a low one
-    low, high = configure(cat, settings["S01"]), configure(cat, settings["S09"])
+    low, high = setting_parameters(cat, settings["S01"]), setting_parameters(cat, settings["S09"])
     assert np.all(high["growth"] > low["growth"])
     assert np.all(high["capstan_exponent"] > low["capstan_exponent"])
     assert TENDON_AZIMUTHS[0, 0] == 0.0 and TENDON_AZIMUTHS[1, 0] == np.pi / 2

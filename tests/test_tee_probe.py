@@ -1,37 +1,54 @@
-"""The real-data benchmark ``benchmarks/bench_tee_probe.py``.
+"""The TEE-probe workflow on the package: recordings of a one-motor probe.
 
-One test runs the script's core on the TEE-probe recordings when their folder
-is present (they are not distributed with skcath); the others run on
-synthetic acquisitions written by the test in the same file layout.
+``docs/real_data.rst`` reads the recordings of a robotised TEE probe with
+:func:`skcath.io.read_recording` and estimates the tip with
+:class:`skcath.backbones.PolynomialBackbone` (fitted once on the training
+acquisition) followed by a residual learner. These tests run the same calls
+on synthetic acquisitions written in the layout of the TEE-probe files, and
+on the recordings themselves when their folder is found (they are not
+distributed with skcath: ``SKCATH_TEE_PROBE``, else ``../shared/data/tee-probe``
+next to the repository).
 """
 
-import importlib.util
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
+from sklearn.pipeline import Pipeline
 
-REPO = Path(__file__).resolve().parents[1]
+from skcath.backbones import PolynomialBackbone
+from skcath.io import read_recording
+from skcath.metrics import per_run_rmse
+from skcath.residuals import GRUResidual, MLPResidual
+
+#: skcath name -> column(s) of the TEE-probe CSV files: the motor channels, and
+#: the position (x, y, z) and quaternion (x, y, z, w) of the tip and base sensors.
+COLUMNS = {"q1": "motor_position", "tau1": "current"}
+for _sensor in ("tip", "base"):
+    for _kind, _axes in (("position", "xyz"), ("orientation", "xyzw")):
+        COLUMNS[f"{_sensor}_{_kind}"] = [f"{_sensor}_{_kind}_{c}" for c in _axes]
+#: The learners of the benchmark, tiny: the tests check the plumbing, not accuracy.
+TINY = dict(
+    use_context=False, frame="base", window=100, burn_in=20, window_step=10,
+    batch_size=32, module__hidden_size=8, n_threads=1, max_epochs=2, random_state=0,
+)
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location(
-        "bench_tee_probe", REPO / "benchmarks" / "bench_tee_probe.py"
+def _file(motor, acquisition):
+    return f"motor{motor}_current60_acq{acquisition}.csv"
+
+
+def _read(path, motor, acquisition, quat_order="xyzw"):
+    """One acquisition as one run, as the benchmark reads it (10 leading 'sweep' samples)."""
+    return read_recording(
+        path, columns=COLUMNS, quat_order=quat_order, constants={"q2": 0.0, "tau2": 0.0},
+        catheter="tee-probe", setting=f"motor{motor}", run=f"motor{motor}-acq{acquisition}",
+        rate_hz=10.0, n_sweep=10,
     )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up here
-    spec.loader.exec_module(module)
-    return module
-
-
-bench = _load_script()
-
-#: A tiny learner configuration: the tests check the plumbing, not accuracy.
-TINY = {"max_epochs": 2, "use_torque": True}
 
 
 # ---------------------------------------------------------------------------
@@ -86,11 +103,11 @@ def synthetic_folder(tmp_path_factory):
     rng = np.random.default_rng(0)
     base_rotation = Rotation.from_rotvec([0.3, -0.5, 1.2])
     truth = {}
-    for motor in bench.MOTORS:
-        for a in bench.ACQUISITIONS:
-            path = folder / bench.file_name(motor, a)
+    for motor in (1, 2):
+        for a in (1, 2, 3):
+            path = folder / _file(motor, a)
             if motor == 2 and a == 3:
-                path.write_bytes((folder / bench.file_name(2, 1)).read_bytes())
+                path.write_bytes((folder / _file(2, 1)).read_bytes())
                 truth[motor, a] = truth[motor, 1]
                 continue
             frame, p_base = _acquisition(
@@ -103,98 +120,25 @@ def synthetic_folder(tmp_path_factory):
 
 def test_read_acquisition_gives_tip_in_base_frame(synthetic_folder):
     folder, truth = synthetic_folder
-    X, y = bench.read_acquisition(folder / bench.file_name(1, 2), 1, 2, n_sweep=10)
+    X, y = _read(folder / _file(1, 2), 1, 2)
     np.testing.assert_allclose(y, truth[1, 2], atol=1e-6)
     assert (X["phase"].iloc[:10] == "sweep").all() and (X["phase"].iloc[10:] == "motion").all()
     assert (X["q2"] == 0).all() and (X["tau2"] == 0).all()
     assert X["run"].iloc[0] == "motor1-acq2"
-    np.testing.assert_allclose(np.diff(X["t"]), 1 / bench.NOMINAL_RATE_HZ)
+    np.testing.assert_allclose(np.diff(X["t"]), 1 / 10.0)
 
 
-def test_quaternion_order_check_separates_the_orders(synthetic_folder):
-    folder, _ = synthetic_folder
-    angles = bench.quaternion_order_check(folder / bench.file_name(1, 1))
-    assert angles["xyzw"] < 5.0
-    assert angles["wxyz"] > 20.0
-
-
-def test_run_benchmark_on_synthetic_acquisitions(synthetic_folder):
-    folder, _ = synthetic_folder
-    results, selection, checks = bench.run_benchmark(
-        folder, seeds=(0,), config=TINY, degrees=range(1, 4), log=lambda *a: None
-    )
-    # 2 motors x 2 test acquisitions x 3 methods, one seed
-    assert len(results) == 12
-    assert set(results["method"]) == set(bench.METHODS)
-    errors = results[["rmse_mm", "first_leg_rmse_mm", "rest_rmse_mm"]]
-    assert np.isfinite(errors.to_numpy()).all() and (errors.to_numpy() > 0).all()
-    # the two parts of the cycle make up the whole: the RMSE lies between them
-    low = errors[["first_leg_rmse_mm", "rest_rmse_mm"]].min(axis=1)
-    high = errors[["first_leg_rmse_mm", "rest_rmse_mm"]].max(axis=1)
-    assert ((low <= errors["rmse_mm"] + 1e-12) & (errors["rmse_mm"] <= high + 1e-12)).all()
-    leaks = results.drop_duplicates(["motor", "test_acquisition"]).set_index(
-        ["motor", "test_acquisition"]
-    )["leaks_training"]
-    assert leaks.to_dict() == {(1, 2): False, (1, 3): False, (2, 2): False, (2, 3): True}
-    assert checks.set_index("motor")["copies_of_acq1"].to_dict() == {1: "", 2: "acq3"}
-    # a copy of the training acquisition scores exactly the training error
-    copy = results[(results["motor"] == 2) & (results["test_acquisition"] == 3)]
-    np.testing.assert_allclose(copy["rmse_mm"], copy["train_rmse_mm"])
-
-    summary = bench.summarize(results)
-    poly = summary[summary["method"] == "polynomial"]
-    np.testing.assert_allclose(poly["ratio_to_polynomial"], 1.0)
-    ratios = bench.headline(summary)
-    assert list(ratios.index) == ["polynomial+MLP", "polynomial+GRU"]
-    # the headline averages over the three tests that are not copies
-    clean = summary[~summary["leaks_training"] & (summary["method"] == "polynomial+GRU")]
-    assert len(clean) == 3
-    assert ratios["polynomial+GRU"] == pytest.approx(clean["ratio_to_polynomial"].mean())
-    assert set(selection["method"]) == {"polynomial"}
-    assert selection["degree"].between(1, 3).all()
-
-
-def test_block_folds_partition_the_motion_rows(synthetic_folder):
-    folder, _ = synthetic_folder
-    X, _ = bench.read_acquisition(folder / bench.file_name(1, 1), 1, 1, n_sweep=10)
-    folds = bench.block_folds(X, n_folds=2, n_blocks_per_fold=5)
-    assert len(folds) == 2
-    assert not (folds[0] & folds[1]).any()
-    motion = (X["phase"] == "motion").to_numpy()
-    np.testing.assert_array_equal(folds[0] | folds[1], motion)
-    # 10 contiguous blocks alternate between the folds
-    changes = np.flatnonzero(np.diff(folds[0][motion].astype(int)))
-    assert changes.size == 9
-
-
-def test_select_config_searches_inside_the_training_run(synthetic_folder):
-    folder, _ = synthetic_folder
-    X, y = bench.read_acquisition(folder / bench.file_name(1, 1), 1, 1, n_sweep=10)
-    grid = {"max_epochs": [1], "use_torque": [True, False]}
-    before = y.copy()
-    best, table = bench.select_config("polynomial+GRU", X, y, 2, grid, seed=0)
-    np.testing.assert_array_equal(y, before)  # the held-out targets are hidden on a copy
-    assert len(table) == 2 and np.isfinite(table["cv_rmse_mm"]).all()
-    assert set(best) == set(grid)
-    chosen = table.loc[table["use_torque"] == best["use_torque"], "cv_rmse_mm"]
-    assert chosen.iloc[0] == table["cv_rmse_mm"].min()
-
-
-def test_first_leg_ends_at_the_motor_maximum(synthetic_folder):
-    folder, _ = synthetic_folder
-    X, _ = bench.read_acquisition(folder / bench.file_name(1, 1), 1, 1, n_sweep=10)
-    rows = bench.first_leg(X)
-    q = X["q1"].to_numpy()
-    end = np.flatnonzero(rows)[-1]
-    assert rows[: end + 1].all() and not rows[end + 1 :].any()
-    assert q[end] == q.max() and (np.diff(q[: end + 1]) >= 0).all()
-
-
-def test_motor_polynomial_backbone(synthetic_folder):
+def test_the_other_quaternion_order_gives_another_tip(synthetic_folder):
     folder, truth = synthetic_folder
-    X, y = bench.read_acquisition(folder / bench.file_name(1, 1), 1, 1, n_sweep=10)
+    _, y = _read(folder / _file(1, 1), 1, 1, quat_order="wxyz")
+    assert np.abs(y - truth[1, 1]).max() > 10.0
+
+
+def test_polynomial_backbone_on_an_acquisition(synthetic_folder):
+    folder, _ = synthetic_folder
+    X, y = _read(folder / _file(1, 1), 1, 1)
     before = X.copy()
-    poly = bench.MotorPolynomial(degree=3).fit(X, y)
+    poly = PolynomialBackbone(degree=3, calibration="fit").fit(X, y)
     Xt = poly.transform(X)
     pd.testing.assert_frame_equal(X, before)  # input left alone
     assert list(Xt.columns) == [*X.columns, "b_x", "b_y", "b_z"]
@@ -204,53 +148,111 @@ def test_motor_polynomial_backbone(synthetic_folder):
     # rows with a NaN target are skipped, not fatal
     y_nan = y.copy()
     y_nan[::2] = np.nan
-    assert np.isfinite(bench.MotorPolynomial(degree=3).fit(X, y_nan).predict(X)).all()
+    assert np.isfinite(PolynomialBackbone(degree=3, calibration="fit").fit(X, y_nan).predict(X)).all()
     with pytest.raises(ValueError, match="degree"):
-        bench.MotorPolynomial(degree=0).fit(X, y)
+        PolynomialBackbone(degree=0, calibration="fit").fit(X, y)
     with pytest.raises(ValueError, match="q1"):
-        bench.MotorPolynomial().fit(X.drop(columns="q1"), y)
+        PolynomialBackbone(calibration="fit").fit(X.drop(columns="q1"), y)
+    # ten "sweep" samples cannot calibrate a polynomial of degree 5 per run
+    with pytest.raises(ValueError, match="motor1-acq1"):
+        PolynomialBackbone(degree=5).fit(X).predict(X)
 
 
-def test_missing_folder_is_a_clear_error(tmp_path, monkeypatch, capsys):
-    monkeypatch.delenv(bench.ENV_VAR, raising=False)
-    with pytest.raises(FileNotFoundError, match=bench.ENV_VAR):
-        bench.resolve_data_folder(tmp_path / "absent")
-    (tmp_path / bench.file_name(1, 1)).write_text("sample\n")
-    with pytest.raises(FileNotFoundError, match="lacks"):
-        bench.resolve_data_folder(tmp_path)
-    assert bench.main(["--data", str(tmp_path / "absent"), "--out", str(tmp_path)]) == 2
-    assert "not distributed" in capsys.readouterr().err
+@pytest.mark.parametrize("Learner", [MLPResidual, GRUResidual])
+def test_polynomial_and_residual_train_on_one_acquisition(synthetic_folder, Learner):
+    folder, _ = synthetic_folder
+    X1, y1 = _read(folder / _file(2, 1), 2, 1)
+    model = Pipeline([
+        ("backbone", PolynomialBackbone(degree=3, calibration="fit")),
+        ("residual", Learner(**TINY)),
+    ]).fit(X1, y1)
+    for a in (2, 3):
+        X, y = _read(folder / _file(2, a), 2, a)
+        pred = model.predict(X)
+        assert pred.shape == y.shape and np.isfinite(pred).all()
+        rmse = per_run_rmse(y, pred, X).iloc[0]
+        # over motion rows: the RMSE of the whole lies between those of its two parts
+        q = X["q1"].to_numpy()
+        first = np.zeros(len(X), dtype=bool)
+        first[: int(np.argmax(q)) + 1] = True
+        parts = []
+        for rows in (first, ~first):
+            y_part = y.copy()
+            y_part[~rows] = np.nan
+            parts.append(per_run_rmse(y_part, pred, X).iloc[0])
+        assert min(parts) - 1e-12 <= rmse <= max(parts) + 1e-12
+    # motor 2's acquisition 3 is a copy of acquisition 1: the training error exactly
+    X3, y3 = _read(folder / _file(2, 3), 2, 3)
+    assert_array_equal(X3[["q1", "tau1"]], X1[["q1", "tau1"]])
+    assert_allclose(
+        per_run_rmse(y3, model.predict(X3), X3).iloc[0], per_run_rmse(y1, model.predict(X1), X1).iloc[0]
+    )
+
+
+def test_hidden_targets_are_skipped_by_the_whole_pipeline(synthetic_folder):
+    # the blocked cross-validation of the benchmark hides the targets of
+    # held-out blocks as NaN; the fit must not read them
+    folder, _ = synthetic_folder
+    X, y = _read(folder / _file(1, 1), 1, 1)
+    held = np.zeros(len(X), dtype=bool)
+    held[100:200] = True
+    y_hidden = y.copy()
+    y_hidden[held] = np.nan
+    y_other = y.copy()
+    y_other[held] = 1e3  # what the fit would learn if it read them
+
+    def fitted(target):
+        return Pipeline([
+            ("backbone", PolynomialBackbone(degree=3, calibration="fit")),
+            ("residual", MLPResidual(**{**TINY, "burn_in": 0})),
+        ]).fit(X, target)
+
+    pred = fitted(y_hidden).predict(X)
+    assert np.isfinite(pred).all()
+    assert np.abs(pred - fitted(y_other).predict(X)).max() > 1.0
+    assert_array_equal(fitted(y_hidden).predict(X), pred)  # seeded: reproducible
 
 
 def _real_folder():
-    path = os.environ.get(bench.ENV_VAR) or bench.DEFAULT_DATA
-    try:
-        return bench.resolve_data_folder(path)
-    except FileNotFoundError:
-        return None
+    default = Path(__file__).resolve().parents[2] / "shared" / "data" / "tee-probe"
+    path = Path(os.environ.get("SKCATH_TEE_PROBE") or default)
+    names = [_file(m, a) for m in (1, 2) for a in (1, 2, 3)]
+    return path if all((path / name).is_file() for name in names) else None
+
+
+def _plane_angle_deg(path, quat_order):
+    """Angle between the tip sensor's rotation axis relative to the base sensor and
+    the normal of the plane the tip moves in (deg); small for the right order."""
+    frame = pd.read_csv(path)
+    _, y = _read(path, 1, 1, quat_order=quat_order)
+    to_scipy = [0, 1, 2, 3] if quat_order == "xyzw" else [1, 2, 3, 0]
+    base = Rotation.from_quat(frame[COLUMNS["base_orientation"]].to_numpy()[:, to_scipy])
+    tip = Rotation.from_quat(frame[COLUMNS["tip_orientation"]].to_numpy()[:, to_scipy])
+    turn = (base.inv() * tip) * (base[0].inv() * tip[0]).inv()
+    axis = np.linalg.svd(turn.as_rotvec(), full_matrices=False)[2][0]
+    normal = np.linalg.svd(y - y.mean(axis=0), full_matrices=False)[2][2]
+    return float(np.degrees(np.arccos(min(1.0, abs(axis @ normal)))))
 
 
 @pytest.mark.skipif(
     _real_folder() is None,
-    reason=f"TEE-probe recordings not found (not distributed; set {bench.ENV_VAR})",
+    reason="TEE-probe recordings not found (not distributed; set SKCATH_TEE_PROBE)",
 )
-def test_run_benchmark_on_the_real_recordings():
+def test_the_real_recordings():
     folder = _real_folder()
-    results, selection, checks = bench.run_benchmark(
-        folder, seeds=(0,), config=TINY, degrees=range(1, 4), log=lambda *a: None
-    )
-    assert len(results) == 12
-    assert np.isfinite(results["rmse_mm"]).all()
-    # motor 2's third acquisition is a copy of its first
-    checks = checks.set_index("motor")
-    assert checks.loc[1, "copies_of_acq1"] == "" and checks.loc[2, "copies_of_acq1"] == "acq3"
-    # the export is scalar last: that order is consistent, the other is not
-    assert (checks["angle_xyzw_deg"] < 10).all() and (checks["angle_wxyz_deg"] > 30).all()
-    # the polynomial explains most of the motion of the tip in training
-    for motor in bench.MOTORS:
-        data = bench.load_motor(folder, motor)
-        X, y = data.X[1], data.y[1]
-        poly = bench.MotorPolynomial(degree=3).fit(X, y)
+    # motor 2's third acquisition is a copy of its first, motor 1's are not
+    for motor, copied in ((1, False), (2, True)):
+        first = pd.read_csv(folder / _file(motor, 1)).to_numpy(dtype=np.float64)
+        third = pd.read_csv(folder / _file(motor, 3)).to_numpy(dtype=np.float64)
+        same = first.shape == third.shape and np.array_equal(first, third, equal_nan=True)
+        assert same is copied
+    for motor in (1, 2):
+        path = folder / _file(motor, 1)
+        # the export is scalar last: that order is consistent, the other is not
+        assert _plane_angle_deg(path, "xyzw") < 10 and _plane_angle_deg(path, "wxyz") > 30
+        X, y = _read(path, motor, 1)
+        # the polynomial explains most of the motion of the tip in training
+        poly = PolynomialBackbone(degree=3, calibration="fit").fit(X, y)
         motion = (X["phase"] == "motion").to_numpy()
         err = np.sqrt(np.mean(np.sum((poly.predict(X) - y)[motion] ** 2, axis=1)))
         spread = np.sqrt(np.mean(np.sum((y[motion] - y[motion].mean(axis=0)) ** 2, axis=1)))

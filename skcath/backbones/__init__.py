@@ -4,6 +4,7 @@ from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ._lm import LMResult, levenberg_marquardt
 from ._pcc import PCCParams, calibrate_pcc, pcc_tip
 from ._pdl import PDLParams, calibrate_pdl, pdl_tip
+from ._polynomial import PolynomialBackbone
 
 __all__ = [
     "BACKBONE_COLUMNS",
@@ -12,6 +13,7 @@ __all__ = [
     "PCCParams",
     "PDLBackbone",
     "PDLParams",
+    "PolynomialBackbone",
     "calibrate_pcc",
     "calibrate_pdl",
     "levenberg_marquardt",

@@ -1,7 +1,13 @@
 """Simulated recordings: the physics-based benchmark that is skcath's default data."""
 
-from ._benchmark import SIMULATOR_VERSION, clear_data_home, get_data_home, make_benchmark
-from ._catheter import Catheter, ShaftSetting, sample_catheter, shaft_settings
+from ._benchmark import (
+    SIMULATOR_VERSION,
+    benchmark_catheter,
+    clear_data_home,
+    get_data_home,
+    make_benchmark,
+)
+from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._simulator import simulate_run
 
@@ -10,10 +16,12 @@ __all__ = [
     "SIMULATOR_VERSION",
     "Catheter",
     "ShaftSetting",
+    "benchmark_catheter",
     "clear_data_home",
     "get_data_home",
     "make_benchmark",
     "sample_catheter",
+    "setting_parameters",
     "shaft_settings",
     "simulate_run",
 ]

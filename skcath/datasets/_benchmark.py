@@ -4,19 +4,28 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 import time
+from numbers import Integral, Real
 from pathlib import Path
 
 import joblib
 import numpy as np
+from sklearn.utils._param_validation import Interval, StrOptions, validate_params
 
-from ._catheter import sample_catheter, shaft_settings
+from ._catheter import UNIT_SPREAD, Catheter, sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._sensors import DistortionField
-from ._simulator import RunSpec, ShaftChange, simulate_runs
+from ._simulator import RunSpec, ShaftChange, check_run_variation, simulate_runs
 
-__all__ = ["get_data_home", "clear_data_home", "make_benchmark", "SIMULATOR_VERSION"]
+__all__ = [
+    "SIMULATOR_VERSION",
+    "benchmark_catheter",
+    "clear_data_home",
+    "get_data_home",
+    "make_benchmark",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -24,6 +33,19 @@ logger = logging.getLogger(__name__)
 SIMULATOR_VERSION = "6"
 
 
+class _Count(Interval):
+    """Integers from ``left`` on, booleans excluded (Python counts ``True`` as an int)."""
+
+    def __init__(self, left):
+        super().__init__(Integral, left, None, closed="left")
+
+    def is_satisfied_by(self, val):
+        return not isinstance(val, (bool, np.bool_)) and super().is_satisfied_by(val)
+
+
+@validate_params(
+    {"data_home": [str, os.PathLike, None]}, prefer_skip_nested_validation=True
+)
 def get_data_home(data_home=None):
     """Folder where skcath caches generated benchmarks.
 
@@ -44,15 +66,18 @@ def get_data_home(data_home=None):
     return path
 
 
+@validate_params(
+    {"data_home": [str, os.PathLike, None]}, prefer_skip_nested_validation=True
+)
 def clear_data_home(data_home=None):
-    """Delete the cache folder and everything in it."""
+    """Delete the cache folder and everything in it.
+
+    Parameters
+    ----------
+    data_home : str or path-like, optional
+        Folder to delete; see :func:`get_data_home`.
+    """
     shutil.rmtree(get_data_home(data_home))
-
-
-def _check_int(name, value, low):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name} must be an int >= {low}; got {value!r}.")
-    return int(value)
 
 
 #: Range of the time of a shaft change after the first motion sample (s):
@@ -73,19 +98,66 @@ def _draw_change(entropy, setting, settings):
     return ShaftChange(after, float(rng.uniform(*CHANGE_AFTER_S)), pose_seed)
 
 
-def benchmark_specs(n_catheters=4, n_runs=3, random_state=0, shaft_change=False):
+@validate_params(
+    {
+        "number": [_Count(1)],
+        "random_state": [_Count(0)],
+        "unit_spread": [Interval(Real, 0, 1, closed="both")],
+    },
+    prefer_skip_nested_validation=True,
+)
+def benchmark_catheter(number, random_state=0, *, unit_spread=UNIT_SPREAD):
+    """Catheter unit ``C<number>`` of the benchmark drawn with ``random_state``.
+
+    The unit that :func:`make_benchmark` simulates as ``C<number>`` (with the
+    same ``random_state`` and ``unit_spread``): its draw depends on these
+    three values only, so every benchmark with at least ``number`` catheters
+    holds this unit.
+
+    Parameters
+    ----------
+    number : int
+        Number of the unit, from 1 (``"C1"``).
+    random_state : int, default=0
+        Seed of the benchmark.
+    unit_spread : float in [0, 1], default=0.35
+        See :func:`sample_catheter`.
+
+    Returns
+    -------
+    catheter : Catheter
+        Named ``"C<number>"``.
+    """
+    seed = np.random.SeedSequence([random_state, number - 1])
+    return sample_catheter(seed, f"C{number}", unit_spread=unit_spread)
+
+
+def _unit_number(catheter):
+    """The number ``k`` of a unit named ``"Ck"``, which selects the runs it is given."""
+    match = re.fullmatch(r"C([1-9][0-9]*)", catheter.name)
+    if match is None:
+        raise ValueError(
+            f"catheters: every unit must be named 'C1', 'C2', ... (the unit named 'Ck' "
+            f"runs the benchmark's runs of its k-th unit); got {catheter.name!r}."
+        )
+    return int(match.group(1))
+
+
+def benchmark_specs(catheters, n_runs=3, random_state=0, shaft_change=False):
     """Run specifications of the benchmark, in catheter, setting, repeat order.
 
-    Catheter ``k`` and each run draw from seeds derived from
-    ``(random_state, k)`` and ``(random_state, k, setting, repeat)``, so a
-    smaller benchmark is a subset of a larger one with the same seed. With
-    ``shaft_change``, every run also gets a :class:`ShaftChange` drawn from
-    its own seed (see :func:`make_benchmark`).
+    The unit named ``"Ck"`` (see :func:`benchmark_catheter`) and each of its
+    runs draw from seeds derived from ``(random_state, k - 1)`` and
+    ``(random_state, k - 1, setting, repeat)``, so a smaller benchmark is a
+    subset of a larger one with the same seed, and a modified unit runs the
+    same runs as the unit it was made from. With ``shaft_change``, every run
+    also gets a :class:`ShaftChange` drawn from its own seed (see
+    :func:`make_benchmark`).
     """
     specs = []
     settings = shaft_settings()
-    for k in range(n_catheters):
-        cat = sample_catheter(np.random.SeedSequence([random_state, k]), f"C{k + 1}")
+    for cat in catheters:
+        k = _unit_number(cat) - 1
         for s_idx, setting in enumerate(settings):
             for r in range(n_runs):
                 entropy = [random_state, k, s_idx, r]
@@ -108,6 +180,22 @@ def _benchmark_field(random_state=0):
     return DistortionField(np.random.SeedSequence([random_state, 10**6]))
 
 
+@validate_params(
+    {
+        "n_catheters": [_Count(1)],
+        "n_runs": [_Count(1)],
+        "mechanism": [StrOptions(set(MECHANISMS))],
+        "random_state": [_Count(0)],
+        "shaft_change": ["boolean"],
+        "unit_spread": [Interval(Real, 0, 1, closed="both")],
+        "run_variation": [dict, None],
+        "catheters": [list, tuple, None],
+        "data_home": [str, os.PathLike, None],
+        "cache": ["boolean"],
+        "verbose": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def make_benchmark(
     n_catheters=4,
     n_runs=3,
@@ -115,6 +203,9 @@ def make_benchmark(
     mechanism="play",
     random_state=0,
     shaft_change=False,
+    unit_spread=UNIT_SPREAD,
+    run_variation=None,
+    catheters=None,
     data_home=None,
     cache=True,
     verbose=False,
@@ -133,7 +224,9 @@ def make_benchmark(
     Parameters
     ----------
     n_catheters : int, default=4
-        Number of catheter units (``C1``, ``C2``, ...).
+        Number of catheter units (``C1``, ``C2``, ...; unit ``Ck`` is
+        :func:`benchmark_catheter` ``(k, random_state)``). Unused when
+        ``catheters`` is given.
     n_runs : int, default=3
         Repeats per shaft setting.
     mechanism : {"play", "bouc_wen", "dahl_creep"}, default="play"
@@ -152,6 +245,26 @@ def make_benchmark(
         those of the run without a change (same seed). ``runs`` gets the
         columns ``setting_after`` and ``change_time_s`` (time ``t`` of the
         first sample in the new setting, s). Cached separately.
+    unit_spread : float in [0, 1], default=0.35
+        Unit-to-unit spread of the drawn catheter units (see
+        :func:`sample_catheter`); 1 draws the units of simulator version 5.
+        Cached separately when not the default.
+    run_variation : dict or None, default=None
+        Per-run variation replacing some of the simulator's standard
+        deviations and time constants, by key: ``gain_jitter``,
+        ``offset_jitter_deg``, ``offset_drift_deg``, ``offset_drift_tau_s``,
+        ``gain_drift``, ``gain_drift_tau_s``, ``base_position_mm``,
+        ``base_rotation_deg`` (``docs/simulator.rst``, *Runs*); e.g.
+        ``{"gain_drift": 0.0}`` switches the gain drift off. The runs keep
+        their random numbers, so only the changed variation differs. Cached
+        separately when given.
+    catheters : list of Catheter, default=None
+        Catheter units to simulate instead of ``n_catheters`` drawn units.
+        Each must be named ``"Ck"`` and runs the runs of the benchmark's unit
+        ``Ck`` (same protocols, per-run variation and noise): a unit changed
+        with ``dataclasses.replace(benchmark_catheter(k), ...)`` is recorded
+        in exactly the runs of the original, and ``[benchmark_catheter(k)]``
+        gives the rows of ``Ck`` alone. Cached separately.
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
@@ -195,11 +308,65 @@ def make_benchmark(
     >>> data.X.groupby("run", observed=True).size().between(6000, 6300).all()  # doctest: +SKIP
     True
     """
-    n_catheters = _check_int("n_catheters", n_catheters, 1)
-    n_runs = _check_int("n_runs", n_runs, 1)
-    random_state = _check_int("random_state", random_state, 0)
-    if mechanism not in MECHANISMS:
-        raise ValueError(f"mechanism must be one of {MECHANISMS}; got {mechanism!r}.")
+    check_run_variation(run_variation)  # a bad key fails before any work
+    given = catheters is not None
+    if given:
+        catheters = _check_catheters(catheters)
+    else:
+        catheters = [
+            benchmark_catheter(k, random_state, unit_spread=unit_spread)
+            for k in range(1, int(n_catheters) + 1)
+        ]
+    key = _cache_key(
+        len(catheters), int(n_runs), mechanism, int(random_state), shaft_change,
+        unit_spread=unit_spread, run_variation=run_variation,
+        catheters=catheters if given else None,
+    )
+    path = _cache_path(key, data_home) if cache else None
+    bunch = None if path is None else _load_cached(path, key)
+    if bunch is not None:
+        return bunch
+
+    start = time.perf_counter()
+    specs = benchmark_specs(catheters, int(n_runs), int(random_state), bool(shaft_change))
+    bunch = simulate_runs(
+        specs, mechanism=mechanism, field=_benchmark_field(int(random_state)),
+        run_variation=run_variation,
+    )
+    bunch.catheters = {c.name: c.to_dict() for c in catheters}
+    bunch.key = key
+    bunch.DESCR = _describe(bunch, len(catheters), int(n_runs))
+    if verbose:
+        logger.info("generated %d runs in %.1f s", len(specs), time.perf_counter() - start)
+    if path is not None:
+        tmp = path.with_suffix(".tmp")
+        joblib.dump(bunch, tmp)
+        tmp.replace(path)
+    return bunch
+
+
+def _check_catheters(catheters):
+    """The given catheter units as a list; each a ``Catheter`` named ``"Ck"``, names unique."""
+    catheters = list(catheters)
+    if not catheters:
+        raise ValueError("catheters must hold at least one Catheter; got an empty sequence.")
+    for cat in catheters:
+        if not isinstance(cat, Catheter):
+            raise TypeError(
+                f"catheters must hold Catheter units (see benchmark_catheter and "
+                f"sample_catheter); got {type(cat).__name__}."
+            )
+        _unit_number(cat)
+    names = [cat.name for cat in catheters]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ValueError(f"catheters: every unit needs its own name; {repeated} repeat.")
+    return catheters
+
+
+def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
+               unit_spread, run_variation, catheters):
+    """What identifies a generated benchmark; the default benchmark keeps its first key."""
     key = {
         "version": SIMULATOR_VERSION,
         "n_catheters": n_catheters,
@@ -207,36 +374,33 @@ def make_benchmark(
         "mechanism": mechanism,
         "random_state": random_state,
     }
-    if not isinstance(shaft_change, (bool, np.bool_)):
-        raise ValueError(f"shaft_change must be a bool; got {shaft_change!r}.")
-    if shaft_change:  # the default benchmark keeps its key, and its cache file
+    if shaft_change:
         key["shaft_change"] = True
-    digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:12]
-    path = None
-    if cache:
-        path = get_data_home(data_home) / f"benchmark-{mechanism}-{digest}.joblib"
-        if path.exists():
-            try:
-                bunch = joblib.load(path)
-                if bunch.get("key") == key:
-                    return bunch
-            except Exception as exc:  # a truncated or foreign file: regenerate
-                logger.warning("ignoring unreadable cache file %s (%s)", path, exc)
+    if unit_spread != UNIT_SPREAD:
+        key["unit_spread"] = float(unit_spread)
+    if run_variation:
+        key["run_variation"] = {k: float(v) for k, v in sorted(run_variation.items())}
+    if catheters is not None:
+        key["catheters"] = [cat.to_dict() for cat in catheters]
+    return key
 
-    start = time.perf_counter()
-    specs = benchmark_specs(n_catheters, n_runs, random_state, bool(shaft_change))
-    bunch = simulate_runs(specs, mechanism=mechanism, field=_benchmark_field(random_state))
-    cats = {s.catheter.name: s.catheter for s in specs}
-    bunch.catheters = {name: c.to_dict() for name, c in cats.items()}
-    bunch.key = key
-    bunch.DESCR = _describe(bunch, n_catheters, n_runs)
-    if verbose:
-        logger.info("generated %d runs in %.1f s", len(specs), time.perf_counter() - start)
-    if cache:
-        tmp = path.with_suffix(".tmp")
-        joblib.dump(bunch, tmp)
-        tmp.replace(path)
-    return bunch
+
+def _cache_path(key, data_home):
+    """File of the benchmark with ``key`` in the cache folder."""
+    digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:12]
+    return get_data_home(data_home) / f"benchmark-{key['mechanism']}-{digest}.joblib"
+
+
+def _load_cached(path, key):
+    """The cached benchmark at ``path`` if it was generated with ``key``, else None."""
+    if not path.exists():
+        return None
+    try:
+        bunch = joblib.load(path)
+    except Exception as exc:  # a truncated or foreign file: regenerate
+        logger.warning("ignoring unreadable cache file %s (%s)", path, exc)
+        return None
+    return bunch if bunch.get("key") == key else None
 
 
 def _describe(bunch, n_catheters, n_runs):

@@ -14,11 +14,20 @@ Three levels of variation, as on a bench:
 """
 
 from dataclasses import asdict, dataclass
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from sklearn.utils._param_validation import Interval, validate_params
 
-__all__ = ["Catheter", "ShaftSetting", "sample_catheter", "shaft_settings", "TENDON_AZIMUTHS"]
+__all__ = [
+    "Catheter",
+    "ShaftSetting",
+    "TENDON_AZIMUTHS",
+    "sample_catheter",
+    "setting_parameters",
+    "shaft_settings",
+]
 
 #: Azimuth of the tendon pulled by a positive / negative input of each axis
 #: (rad); axis 1 bends towards +x, axis 2 towards +y.
@@ -62,6 +71,14 @@ class ShaftSetting:
         return np.array([np.cos(b), np.sin(b)])
 
 
+@validate_params(
+    {
+        "n_directions": [Interval(Integral, 1, None, closed="left")],
+        "levels": ["array-like"],
+        "straight_wrap_deg": [Interval(Real, 0, None, closed="left")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def shaft_settings(*, n_directions=8, levels=(("low", 90.0), ("high", 180.0)), straight_wrap_deg=30.0):
     """The protocol's shaft settings: straight, then directions x levels.
 
@@ -122,9 +139,9 @@ class Catheter:
         Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
     play_w0, play_growth_base, play_growth_scale, play_asym : float
         Play width at zero load and one radian of wrap (deg; it scales
-        with each tendon pair's wrap, see :func:`configure`); growth of the width with load,
-        ``base + scale (1 - exp(-mu Theta))`` (deg/deg); and the
-        unloading/loading width ratio.
+        with each tendon pair's wrap, see :func:`setting_parameters`);
+        growth of the width with load, ``base + scale (1 - exp(-mu
+        Theta))`` (deg/deg); and the unloading/loading width ratio.
     bw_kappa : float
         Bouc-Wen sharpness.
     rate_gain, rate_speed, creep_gain, creep_tau : float
@@ -235,26 +252,51 @@ class Catheter:
 
 #: Unit-to-unit spread of the family (version 6): every unit parameter is
 #: drawn from its range and then pulled towards the middle of that range by
-#: this factor, ``middle + UNIT_SPREAD (draw - middle)``. See ``sample_catheter``.
+#: this factor, ``middle + UNIT_SPREAD (draw - middle)``. The default
+#: ``unit_spread`` of :func:`sample_catheter`.
 UNIT_SPREAD = 0.35
 
 
-def _toward(value, middle):
-    """``value`` pulled towards ``middle`` by :data:`UNIT_SPREAD`."""
-    return middle + UNIT_SPREAD * (np.asarray(value, dtype=float) - middle)
+def _toward(value, middle, spread):
+    """``value`` pulled towards ``middle``: ``middle + spread (value - middle)``."""
+    return middle + spread * (np.asarray(value, dtype=float) - middle)
 
 
-def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
+@validate_params(
+    {
+        "random_state": [
+            Interval(Integral, 0, None, closed="left"),
+            np.random.Generator,
+            np.random.SeedSequence,
+            None,
+        ],
+        "name": [str],
+        "gain_deg_per_deg": [Interval(Real, 0, None, closed="neither")],
+        "unit_spread": [Interval(Real, 0, 1, closed="both")],
+    },
+    prefer_skip_nested_validation=True,
+)
+def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_spread=UNIT_SPREAD):
     """Draw one catheter unit of the family.
 
     Parameters
     ----------
-    random_state : int, numpy.random.Generator or numpy.random.SeedSequence
-        Source of randomness.
+    random_state : int, numpy.random.Generator, numpy.random.SeedSequence or None
+        Source of randomness; None draws fresh entropy from the system.
     name : str
         Catheter id.
     gain_deg_per_deg : float
         Nominal bend per degree of effective tendon input (deg/deg).
+    unit_spread : float in [0, 1], default=0.35
+        How far a unit's parameters spread over the family's ranges: each
+        parameter marked *(narrowed)* in ``docs/simulator.rst`` is a draw
+        ``x`` from its range pulled towards the middle ``m`` of the range,
+        ``m + unit_spread (x - m)``, and so is the mean of the four tendon
+        gains. 1 draws over the whole ranges (the units of simulator
+        version 5, from the same random numbers), 0 gives every unit the
+        middle of every narrowed range. The other parameters (direction-
+        dependent routing, differences between the tendons, offsets, the
+        base-sensor mount) are drawn over their whole ranges in any case.
 
     Returns
     -------
@@ -264,17 +306,19 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
 
     def u(low, high, size=None):
         # a unit's value: a draw from the family's range, pulled towards its middle
-        return _toward(rng.uniform(low, high, size), 0.5 * (low + high))
+        return _toward(rng.uniform(low, high, size), 0.5 * (low + high), unit_spread)
 
     def n(mean=0.0, sd=1.0, size=None):
-        return _toward(rng.normal(mean, sd, size), mean)
+        return _toward(rng.normal(mean, sd, size), mean, unit_spread)
 
     # the four tendon gains: the unit's mean gain is narrowed, the differences
     # between its tendons (direction-dependent, what PDL captures and PCC
     # cannot) are kept whole
     relative = 1.0 + rng.normal(0.0, 0.2, size=(2, 2))
     mean_gain = relative.mean()
-    gains = np.deg2rad(gain_deg_per_deg) * (relative - mean_gain + _toward(mean_gain, 1.0))
+    gains = np.deg2rad(gain_deg_per_deg) * (
+        relative - mean_gain + _toward(mean_gain, 1.0, unit_spread)
+    )
     # the mounting of the base sensor is a property of the set-up, not of the
     # unit: drawn over the whole range
     tilt_axis = rng.normal(size=2)
@@ -344,8 +388,15 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2):
 PLAY_FLOOR = 0.2
 
 
-def configure(catheter, setting):
-    """Parameters of a catheter in a shaft setting (before per-run variation).
+@validate_params(
+    {"catheter": [Catheter], "setting": [ShaftSetting]}, prefer_skip_nested_validation=True
+)
+def setting_parameters(catheter, setting):
+    """Parameters of a catheter unit in a shaft setting (before per-run variation).
+
+    The simulator's ground truth of what a shaft setting does to a unit's
+    transmission; every run of the unit in that setting starts from these
+    values, then adds its own jitter and drift (``docs/simulator.rst``).
 
     Physical routes of the shaft configuration (``Theta`` = capstan wrap in
     rad, ``b`` = unit shaft-bend direction):
@@ -364,10 +415,25 @@ def configure(catheter, setting):
     * motor offsets ``shift Theta b`` (the outer tendon is pre-stretched);
     * resting curvature, coupling and twist nudged along the bend direction.
 
+    Parameters
+    ----------
+    catheter : Catheter
+        The unit.
+    setting : ShaftSetting
+        The shaft setting (see :func:`shaft_settings`).
+
     Returns
     -------
     params : dict
-        Scalars and small arrays used by the simulator.
+        ``gains`` (2, 2) bend per effective input of each axis and sign
+        (rad/deg); ``offsets`` (2,) motor offsets (deg); ``rest_bend`` (2,)
+        resting curvature (rad); ``coupling`` (2,) cross-axis coupling;
+        ``twist`` (rad/rad); ``routing`` (6,) amplitudes and phases of the
+        direction-dependent routing (rad, ``A1, zeta1, A3, zeta3, B3,
+        xi3``); ``windup`` largest wind-up lag (rad); ``w0`` (2,) no-load
+        play width per axis (deg); ``growth`` (2,) growth of the play width
+        with load (deg/deg); ``dead_zone`` (2,) dead-zone width per axis
+        (deg); ``capstan_exponent`` (2,) ``mu Theta_i`` of each axis.
     """
     c = catheter
     theta = setting.wrap

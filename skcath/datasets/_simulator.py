@@ -5,22 +5,24 @@ everything stateless is vectorised over samples.
 """
 
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 from sklearn.utils import Bunch
+from sklearn.utils._param_validation import Interval, StrOptions, validate_params
 
 from .. import _format as fmt
 from ..frames import tip_in_base_frame
-from ._catheter import Catheter, ShaftSetting, configure, sample_catheter, shaft_settings
+from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
 from ._protocol import run_protocol
 from ._sensors import DistortionField, measure_pose
 
-__all__ = ["RunSpec", "ShaftChange", "simulate_runs", "simulate_run"]
+__all__ = ["RUN_VARIATION", "RunSpec", "ShaftChange", "check_run_variation", "simulate_runs", "simulate_run"]
 
 RATE_HZ = 10.0
 
@@ -37,6 +39,45 @@ RUN_VARIATION = {
     "base_position_mm": 2.0,
     "base_rotation_deg": 2.0,
 }
+#: Keys of :data:`RUN_VARIATION` that are time constants (s), which must be positive.
+_TIME_CONSTANTS = ("offset_drift_tau_s", "gain_drift_tau_s")
+
+
+def check_run_variation(run_variation=None):
+    """The per-run variation with some values replaced, checked.
+
+    Parameters
+    ----------
+    run_variation : dict or None
+        Values replacing those of :data:`RUN_VARIATION`, by key (e.g.
+        ``{"gain_drift": 0.0}`` switches the gain drift off); None keeps them.
+
+    Returns
+    -------
+    variation : dict
+        All keys of :data:`RUN_VARIATION`, as floats.
+
+    Raises
+    ------
+    ValueError
+        For an unknown key, or a value that is not a finite number ``>= 0``
+        (``> 0`` for the time constants).
+    """
+    changes = {} if run_variation is None else dict(run_variation)
+    unknown = sorted(set(changes) - set(RUN_VARIATION), key=str)
+    if unknown:
+        raise ValueError(
+            f"run_variation has unknown key(s) {unknown}; the keys are {sorted(RUN_VARIATION)}."
+        )
+    for key, value in changes.items():
+        is_number = isinstance(value, Real) and not isinstance(value, bool)
+        positive = key in _TIME_CONSTANTS
+        if not (is_number and np.isfinite(value) and (value > 0 if positive else value >= 0)):
+            bound = "> 0 (a time constant, s)" if key in _TIME_CONSTANTS else ">= 0"
+            raise ValueError(
+                f"run_variation[{key!r}] must be a finite number {bound}; got {value!r}."
+            )
+    return {key: float(changes.get(key, default)) for key, default in RUN_VARIATION.items()}
 
 
 @dataclass(frozen=True)
@@ -110,24 +151,24 @@ def _axis_gains(e, gains):
     return e * (s * gains[:, 0] + (1.0 - s) * gains[:, 1])
 
 
-def _base_pose(rng, setting):
+def _base_pose(rng, setting, variation):
     """Pose of the bending-section base in the tracker frame for one run (mm)."""
     bvec = setting.bend_vector()
     visible = 0.5 * (setting.bend_deg - 30.0)
     shaft = Rotation.from_rotvec(np.deg2rad(visible) * np.array([-bvec[1], bvec[0], 0.0]))
-    jitter = Rotation.from_rotvec(rng.normal(0.0, np.deg2rad(RUN_VARIATION["base_rotation_deg"]), 3))
+    jitter = Rotation.from_rotvec(rng.normal(0.0, np.deg2rad(variation["base_rotation_deg"]), 3))
     position = np.array([0.0, 0.0, 250.0]) + 0.3 * visible * np.r_[bvec, 0.0]
-    position = position + rng.normal(0.0, RUN_VARIATION["base_position_mm"], 3)
+    position = position + rng.normal(0.0, variation["base_position_mm"], 3)
     return shaft * jitter, position
 
 
-def _draw_run(spec):
+def _draw_run(spec, variation):
     """Per-run random quantities that do not need the time loop."""
     rng = np.random.default_rng(spec.seed)
     q, n_sweep = run_protocol(rng, rate_hz=RATE_HZ)
     n = len(q)
-    cfg = configure(spec.catheter, spec.setting)
-    v = RUN_VARIATION
+    cfg = setting_parameters(spec.catheter, spec.setting)
+    v = variation
     offsets = cfg["offsets"] + rng.normal(0.0, v["offset_jitter_deg"], 2)
     offsets = offsets + _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
     gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
@@ -140,7 +181,7 @@ def _draw_run(spec):
                 f"change_after_s={spec.change.after_s!r} s is outside the motion phase of run "
                 f"{spec.run!r}, which lasts {(n - n_sweep) / RATE_HZ:.1f} s."
             )
-        cfg_after = configure(spec.catheter, spec.change.setting)
+        cfg_after = setting_parameters(spec.catheter, spec.change.setting)
         draw["cfg_after"] = cfg_after
         draw["u_after"] = draw["u"] + (cfg["offsets"] - cfg_after["offsets"])
         draw["change_index"] = k
@@ -192,7 +233,7 @@ def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
     return a, delta, p_k, cat.pulley_radius * (pos - neg)
 
 
-def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
+def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     """Kinematics, torque and EM sensors of one run, vectorised over samples.
 
     For a run whose shaft is repositioned at sample ``draw["change_index"]``,
@@ -219,13 +260,15 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate):
     # base frame and sensors
     mount = Rotation.from_rotvec(cat.mount_rotvec)  # kinematic frame K -> base-sensor frame B
     y_true = mount.apply(p_k - cat.mount_position)
-    r_wk, p_wk = _base_pose(rng, spec.setting)
+    r_wk, p_wk = _base_pose(rng, spec.setting, variation)
     tip_pos = p_wk + r_wk.apply(p_k)
     tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
     base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
     base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
     if k is not None:  # the base of the bending section moves with the shaft
-        r_b, p_b = _base_pose(np.random.default_rng(spec.change.seed), spec.change.setting)
+        r_b, p_b = _base_pose(
+            np.random.default_rng(spec.change.seed), spec.change.setting, variation
+        )
         tip_pos[k:] = p_b + r_b.apply(p_k[k:])
         bend_after = Rotation.from_rotvec(tip_rotvec(a[k:], delta[k:]))
         tip_rot = Rotation.concatenate([tip_rot[:k], r_b * bend_after])
@@ -270,7 +313,50 @@ def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, length
         windup_all[k:, j] = windup_after[k:, i]
 
 
-def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
+def _run_frame(spec, draw, tau, y):
+    """The long-format rows of one simulated run (reference tip on sweep rows only)."""
+    q, n = draw["q"], len(draw["q"])
+    sweep = np.arange(n) < draw["n_sweep"]
+    ref = np.where(sweep[:, None], y, np.nan)
+    return pd.DataFrame(
+        {
+            fmt.CATHETER: spec.catheter.name,
+            fmt.SETTING: spec.setting.name,
+            fmt.RUN: spec.run,
+            fmt.TIME: np.arange(n) / RATE_HZ,
+            fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
+            "q1": q[:, 0], "q2": q[:, 1],
+            "tau1": tau[:, 0], "tau2": tau[:, 1],
+            "ref_x": ref[:, 0], "ref_y": ref[:, 1], "ref_z": ref[:, 2],
+        }
+    )
+
+
+def _run_row(spec, draw, y, y_true, *, with_change):
+    """The row of one simulated run in the ``runs`` table (noise floor over motion rows, mm)."""
+    n = len(draw["q"])
+    motion = np.arange(n) >= draw["n_sweep"]
+    err = np.linalg.norm(y[motion] - y_true[motion], axis=1)
+    row = {
+        "run": spec.run,
+        "catheter": spec.catheter.name,
+        "setting": spec.setting.name,
+        "repeat": spec.repeat,
+        "bend_level": spec.setting.level,
+        "bend_direction_deg": spec.setting.direction_deg,
+        "shaft_wrap_deg": spec.setting.bend_deg,
+        "n_samples": int(n),
+        "n_sweep": int(draw["n_sweep"]),
+        "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
+    }
+    if with_change:
+        k = draw.get("change_index")
+        row["setting_after"] = None if k is None else spec.change.setting.name
+        row["change_time_s"] = np.nan if k is None else k / RATE_HZ
+    return row
+
+
+def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None):
     """Simulate many runs at once.
 
     Parameters
@@ -283,6 +369,9 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
         Field distortion of the tracker (None: no distortion).
     dropout_rate : float
         Probability that the tip sensor is lost at a sample (NaN target).
+    run_variation : dict or None
+        Per-run variation replacing values of :data:`RUN_VARIATION` (see
+        :func:`check_run_variation`).
 
     Returns
     -------
@@ -298,7 +387,8 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
         raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
     if not 0.0 <= dropout_rate < 1.0:
         raise ValueError(f"dropout_rate must be in [0, 1); got {dropout_rate!r}.")
-    draws = [_draw_run(s) for s in specs]
+    variation = check_run_variation(run_variation)
+    draws = [_draw_run(s, variation) for s in specs]
     lengths = np.array([len(d["q"]) for d in draws])
     n_max = lengths.max()
     u = np.empty((n_max, len(specs), 2))
@@ -317,46 +407,14 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
     for j, (spec, d) in enumerate(zip(specs, draws)):
         n = lengths[j]
         tau, y, y_true, sens = _finish_run(
-            spec, d, v_all[:n, j], phi_all[:n, j], windup_all[:n, j], field, dropout_rate
+            spec, d, v_all[:n, j], phi_all[:n, j], windup_all[:n, j], field, dropout_rate,
+            variation,
         )
-        sweep = np.arange(n) < d["n_sweep"]
-        ref = np.where(sweep[:, None], y, np.nan)
-        frames.append(
-            pd.DataFrame(
-                {
-                    fmt.CATHETER: spec.catheter.name,
-                    fmt.SETTING: spec.setting.name,
-                    fmt.RUN: spec.run,
-                    fmt.TIME: np.arange(n) / RATE_HZ,
-                    fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
-                    "q1": d["q"][:, 0], "q2": d["q"][:, 1],
-                    "tau1": tau[:, 0], "tau2": tau[:, 1],
-                    "ref_x": ref[:, 0], "ref_y": ref[:, 1], "ref_z": ref[:, 2],
-                }
-            )
-        )
+        frames.append(_run_frame(spec, d, tau, y))
         ys.append(y)
         ys_true.append(y_true)
         sensors.append(sens)
-        err = np.linalg.norm(y[~sweep] - y_true[~sweep], axis=1)
-        rows.append(
-            {
-                "run": spec.run,
-                "catheter": spec.catheter.name,
-                "setting": spec.setting.name,
-                "repeat": spec.repeat,
-                "bend_level": spec.setting.level,
-                "bend_direction_deg": spec.setting.direction_deg,
-                "shaft_wrap_deg": spec.setting.bend_deg,
-                "n_samples": int(n),
-                "n_sweep": int(d["n_sweep"]),
-                "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
-            }
-        )
-        if changed:
-            k = d.get("change_index")
-            rows[-1]["setting_after"] = None if k is None else spec.change.setting.name
-            rows[-1]["change_time_s"] = np.nan if k is None else k / RATE_HZ
+        rows.append(_run_row(spec, d, y, y_true, with_change=bool(changed)))
     X = pd.concat(frames, ignore_index=True)
     for col in (*fmt.ID_COLUMNS, fmt.PHASE):
         X[col] = X[col].astype("category")
@@ -373,6 +431,21 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0):
     )
 
 
+@validate_params(
+    {
+        "catheter": [Catheter, None],
+        "setting": [ShaftSetting, str, None],
+        "mechanism": [StrOptions(set(MECHANISMS))],
+        "random_state": [Interval(Integral, 0, None, closed="left"), np.random.Generator, None],
+        "run": [str],
+        "field": ["boolean"],
+        "dropout_rate": [Interval(Real, 0, 1, closed="left")],
+        "setting_after": [ShaftSetting, str, None],
+        # a right end of inf, open: the time must be finite
+        "change_after_s": [Interval(Real, 0, np.inf, closed="left")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def simulate_run(
     catheter=None,
     setting=None,
@@ -439,12 +512,6 @@ def simulate_run(
         setting_after = _lookup_setting("setting_after", setting_after)
         if setting_after.name == setting.name:
             raise ValueError(f"setting_after={setting_after.name!r} must differ from setting.")
-        is_number = isinstance(change_after_s, (int, float, np.number))
-        is_number = is_number and not isinstance(change_after_s, bool)
-        if not (is_number and np.isfinite(change_after_s) and change_after_s >= 0):
-            raise ValueError(
-                f"change_after_s must be a finite number of seconds >= 0; got {change_after_s!r}."
-            )
         change = ShaftChange(setting_after, float(change_after_s), root.spawn(1)[0])
     spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1], change=change)
     dist = DistortionField(seeds[2]) if field else None
@@ -463,10 +530,6 @@ def _lookup_setting(name, setting):
 
 def _entropy(random_state):
     """Integer entropy from an int, a Generator or None."""
-    if random_state is None:
-        return None
     if isinstance(random_state, np.random.Generator):
         return int(random_state.integers(2**63))
-    if isinstance(random_state, (int, np.integer)) and not isinstance(random_state, bool) and random_state >= 0:
-        return int(random_state)
-    raise ValueError(f"random_state must be a non-negative int, a numpy Generator or None; got {random_state!r}.")
+    return None if random_state is None else int(random_state)
