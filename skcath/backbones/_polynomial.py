@@ -33,7 +33,8 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
-from .._validation import check_recordings, run_codes, run_positions
+from .._runs import run_codes, run_positions
+from .._validation import check_recordings
 from ._backbone import BACKBONE_COLUMNS
 
 __all__ = ["PolynomialBackbone"]

@@ -12,8 +12,6 @@ from sklearn.utils._param_validation import validate_params
 from ._figures import write_figures
 from ._methods import LOCO_VARIANT, MAIN_METHODS, METHODS, methods_with_role
 
-from ._figures import write_figures
-
 __all__ = ["format_report", "write_results", "TABLE_FILES"]
 
 #: Table key -> CSV file name written by :func:`write_results`.
