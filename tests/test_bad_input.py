@@ -422,6 +422,51 @@ def test_reader_keeps_tracker_dropouts_as_nan(tmp_path):
 
 
 # ---------------------------------------------------------------------------
+# readers: orientation order, cut and foreign CSV files, unreadable files,
+# missing columns, clock units of two streams
+# ---------------------------------------------------------------------------
+def _scalar_last_pose_file(X, y, seed=0):
+    """The recording as a tracker export: sensor poses under other names, quaternions x, y, z, w."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    r_wb = Rotation.random(len(y), random_state=rng)
+    p_wb = rng.uniform(-100.0, 100.0, size=(len(y), 3))
+    frame = X.drop(columns=REFERENCE).reset_index(drop=True)
+    for j, axis in enumerate("xyz"):
+        frame[f"tip_{axis}"] = p_wb[:, j] + r_wb.apply(y)[:, j]
+        frame[f"base_{axis}"] = p_wb[:, j]
+    for j, axis in enumerate("xyzw"):
+        frame[f"base_r{axis}"] = r_wb.as_quat()[:, j]
+    columns = {
+        "tip_position": ["tip_x", "tip_y", "tip_z"],
+        "base_position": ["base_x", "base_y", "base_z"],
+        "base_orientation": ["base_rx", "base_ry", "base_rz", "base_rw"],
+    }
+    return frame, columns
+
+
+def test_orientation_group_without_quat_order_is_refused(tmp_path):
+    """A mapped orientation group names no component order: quat_order is required."""
+    X, y = tiny_recordings(n_runs=1)
+    frame, columns = _scalar_last_pose_file(X, y)
+    frame.to_csv(tmp_path / "export.csv", index=False)
+    match = (
+        r"columns\['base_orientation'\] maps the base orientation to the file "
+        r"columns \['base_rx', 'base_ry', 'base_rz', 'base_rw'\], but quat_order is not given"
+        r".*quat_order='wxyz' .*scalar first.*quat_order='xyzw' .*scalar last"
+    )
+    with pytest.raises(ValueError, match=match):
+        read_recording(tmp_path / "export.csv", columns=columns)
+    _, y_read = read_recording(tmp_path / "export.csv", columns=columns, quat_order="xyzw")
+    np.testing.assert_allclose(y_read, y, atol=1e-9)
+    # the skcath names are scalar first by name and need no quat_order
+    standard = _standard_file(X, y).reset_index(drop=True)
+    standard.to_csv(tmp_path / "standard.csv", index=False)
+    np.testing.assert_allclose(read_recording(tmp_path / "standard.csv")[1], y)
+
+
+# ---------------------------------------------------------------------------
 # quaternions (tip_in_base_frame)
 # ---------------------------------------------------------------------------
 def _poses(n=6, seed=0):

@@ -88,7 +88,7 @@ def read_recording(
     path,
     *,
     columns=None,
-    quat_order="wxyz",
+    quat_order=None,
     catheter=None,
     setting=None,
     run=None,
@@ -120,10 +120,13 @@ def read_recording(
         ``tip_position`` / ``base_position`` (3 file columns x, y, z) and
         ``tip_orientation`` / ``base_orientation`` (4 file columns listed in
         the order ``quat_order``).
-    quat_order : {"wxyz", "xyzw"}, default="wxyz"
+    quat_order : {"wxyz", "xyzw"}, default=None
         Component order of the 4 file columns given for an orientation group
-        in ``columns``. Quaternions mapped component by component do not
-        depend on it.
+        in ``columns``: ``"wxyz"`` (scalar first) or ``"xyzw"`` (scalar
+        last). Required when ``columns`` maps an orientation group, since
+        skcath never guesses it; quaternions read under their skcath names
+        (``tip_qw, ...``) or mapped component by component do not depend on
+        it.
     catheter, setting, run : str or int, default=None
         Id of all rows, for files without that column (giving an id that the
         file also has is an error). ``run`` defaults to the file name without
@@ -186,7 +189,8 @@ def read_recording(
     Raises
     ------
     ValueError
-        On an unsupported file suffix or an invalid argument, and for every
+        On an unsupported file suffix or an invalid argument (an orientation
+        group in ``columns`` without ``quat_order`` included), and for every
         problem with the file: a mapped column that is missing, a channel that
         is neither in the file nor in ``constants``, non-numeric values, an
         unknown phase value, no target columns, conflicting information (an
