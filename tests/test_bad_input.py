@@ -466,6 +466,27 @@ def test_orientation_group_without_quat_order_is_refused(tmp_path):
     np.testing.assert_allclose(read_recording(tmp_path / "standard.csv")[1], y)
 
 
+@pytest.mark.parametrize(
+    "dropped, match",
+    [
+        pytest.param(["catheter"], r"file has no 'catheter' column", id="no-catheter"),
+        pytest.param(["t"], r"file has no time column 't'", id="no-time"),
+        pytest.param(["phase"], r"file has no 'phase' column", id="no-phase"),
+        pytest.param(["tau2"], r"file has no 'tau2' column", id="no-torque"),
+        pytest.param(["p_z"], r"no target found.*missing: \['p_z'\]", id="no-target"),
+        pytest.param(["ref_y"], r"reference column\(s\) \['ref_x', 'ref_z'\] but not", id="part-ref"),
+    ],
+)
+def test_reader_missing_column_lists_the_file_columns(tmp_path, dropped, match):
+    """A column the reader misses is named together with the columns the file has."""
+    X, y = tiny_recordings(n_runs=1)
+    frame = _standard_file(X, y).reset_index(drop=True).drop(columns=dropped)
+    frame.to_csv(tmp_path / "rec.csv", index=False)
+    found = re.escape(f"file columns: {list(frame.columns)}.")
+    with pytest.raises(ValueError, match=rf"rec\.csv: .*{match}.*{found}$"):
+        read_recording(tmp_path / "rec.csv")
+
+
 # ---------------------------------------------------------------------------
 # quaternions (tip_in_base_frame)
 # ---------------------------------------------------------------------------

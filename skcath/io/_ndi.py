@@ -138,7 +138,8 @@ def _tool_blocks(header, path):
         if position is None:
             raise ValueError(
                 f"{path.name}: the quaternion columns {header[start : start + 4]} "
-                "are not followed by position columns (Tx, Ty, Tz or x, y, z)."
+                f"are not followed by position columns (Tx, Ty, Tz or x, y, z). "
+                f"Header: {header}."
             )
         blocks.append(
             {
@@ -298,7 +299,7 @@ def _frame_meta(rows, header, path):
     return meta
 
 
-def _frame_key(wide, meta, path):
+def _frame_key(wide, meta, header, path):
     """Columns that identify a frame: the file row (wide), else frame number or time."""
     if wide:
         return ["row"]
@@ -308,7 +309,7 @@ def _frame_key(wide, meta, path):
         return ["t"]
     raise ValueError(
         f"{path.name}: one row per tool but neither a frame number nor a "
-        "timestamp column to match the tools of one frame."
+        f"timestamp column to match the tools of one frame. Header: {header}."
     )
 
 
@@ -417,7 +418,7 @@ def read_ndi_csv(
     blocks = _tool_blocks(header, path)
     poses = _block_poses(rows, header, blocks, accepted, quat_order, path)
     meta = _frame_meta(rows, header, path)
-    key = _frame_key(len(blocks) > 1 or poses["tool"].nunique() <= 1, meta, path)
+    key = _frame_key(len(blocks) > 1 or poses["tool"].nunique() <= 1, meta, header, path)
     poses = poses.merge(meta, on="row", how="left")
     frames = meta.drop_duplicates(subset=key, keep="first") if key != ["row"] else meta
 
