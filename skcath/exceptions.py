@@ -4,7 +4,7 @@ A leaf module: it imports nothing from the package, so that every other module
 can import it.
 """
 
-__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning"]
+__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning", "TruncatedFileWarning"]
 
 
 class InconsistentVersionWarning(UserWarning):
@@ -44,4 +44,16 @@ class IncompatibleVersionError(ValueError):
     Raised by :func:`skcath.persist.load` before anything is unpickled; pass
     ``allow_version_mismatch=True`` to load the file anyway. See
     :func:`skcath.persist.is_compatible_version` for the rule.
+    """
+
+
+class TruncatedFileWarning(UserWarning):
+    """A CSV file looks cut short; its last line was dropped.
+
+    Warned by the readers of :mod:`skcath.io` when the last line of a CSV
+    file does not end with a line break, or holds fewer fields than the
+    header and the line before it: what a recording interrupted while the
+    file was written leaves behind. The values of such a line cannot be
+    trusted (a number may be cut short), so the line is not read. The
+    message names the file and shows the line.
     """

@@ -18,6 +18,7 @@ import pytest
 from skcath._validation import check_recordings
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
+from skcath.exceptions import TruncatedFileWarning
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
 from skcath.sweep import find_rays
@@ -419,6 +420,278 @@ def test_reader_keeps_tracker_dropouts_as_nan(tmp_path):
     assert len(X_read) == len(X)
     np.testing.assert_array_equal(np.isnan(y_read).all(axis=1), np.isnan(y).all(axis=1))
     np.testing.assert_allclose(y_read[~np.isnan(y).any(axis=1)], y[~np.isnan(y).any(axis=1)])
+
+
+# ---------------------------------------------------------------------------
+# readers: orientation order, cut and foreign CSV files, unreadable files,
+# missing columns, clock units of two streams
+# ---------------------------------------------------------------------------
+def _scalar_last_pose_file(X, y, seed=0):
+    """The recording as a tracker export: sensor poses under other names, quaternions x, y, z, w."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    r_wb = Rotation.random(len(y), random_state=rng)
+    p_wb = rng.uniform(-100.0, 100.0, size=(len(y), 3))
+    frame = X.drop(columns=REFERENCE).reset_index(drop=True)
+    for j, axis in enumerate("xyz"):
+        frame[f"tip_{axis}"] = p_wb[:, j] + r_wb.apply(y)[:, j]
+        frame[f"base_{axis}"] = p_wb[:, j]
+    for j, axis in enumerate("xyzw"):
+        frame[f"base_r{axis}"] = r_wb.as_quat()[:, j]
+    columns = {
+        "tip_position": ["tip_x", "tip_y", "tip_z"],
+        "base_position": ["base_x", "base_y", "base_z"],
+        "base_orientation": ["base_rx", "base_ry", "base_rz", "base_rw"],
+    }
+    return frame, columns
+
+
+def test_orientation_group_without_quat_order_is_refused(tmp_path):
+    """A mapped orientation group names no component order: quat_order is required."""
+    X, y = tiny_recordings(n_runs=1)
+    frame, columns = _scalar_last_pose_file(X, y)
+    frame.to_csv(tmp_path / "export.csv", index=False)
+    match = (
+        r"columns\['base_orientation'\] maps the base orientation to the file "
+        r"columns \['base_rx', 'base_ry', 'base_rz', 'base_rw'\], but quat_order is not given"
+        r".*quat_order='wxyz' .*scalar first.*quat_order='xyzw' .*scalar last"
+    )
+    with pytest.raises(ValueError, match=match):
+        read_recording(tmp_path / "export.csv", columns=columns)
+    _, y_read = read_recording(tmp_path / "export.csv", columns=columns, quat_order="xyzw")
+    np.testing.assert_allclose(y_read, y, atol=1e-9)
+    # the skcath names are scalar first by name and need no quat_order
+    standard = _standard_file(X, y).reset_index(drop=True)
+    standard.to_csv(tmp_path / "standard.csv", index=False)
+    np.testing.assert_allclose(read_recording(tmp_path / "standard.csv")[1], y)
+
+
+@pytest.mark.parametrize(
+    "dropped, match",
+    [
+        pytest.param(["catheter"], r"file has no 'catheter' column", id="no-catheter"),
+        pytest.param(["t"], r"file has no time column 't'", id="no-time"),
+        pytest.param(["phase"], r"file has no 'phase' column", id="no-phase"),
+        pytest.param(["tau2"], r"file has no 'tau2' column", id="no-torque"),
+        pytest.param(["p_z"], r"no target found.*missing: \['p_z'\]", id="no-target"),
+        pytest.param(["ref_y"], r"reference column\(s\) \['ref_x', 'ref_z'\] but not", id="part-ref"),
+    ],
+)
+def test_reader_missing_column_lists_the_file_columns(tmp_path, dropped, match):
+    """A column the reader misses is named together with the columns the file has."""
+    X, y = tiny_recordings(n_runs=1)
+    frame = _standard_file(X, y).reset_index(drop=True).drop(columns=dropped)
+    frame.to_csv(tmp_path / "rec.csv", index=False)
+    found = re.escape(f"file columns: {list(frame.columns)}.")
+    with pytest.raises(ValueError, match=rf"rec\.csv: .*{match}.*{found}$"):
+        read_recording(tmp_path / "rec.csv")
+
+
+def _recording_csv(path, **to_csv):
+    """Write a one-run recording in the skcath names; return the frame written."""
+    X, y = tiny_recordings(n_runs=1)
+    frame = _standard_file(X, y).reset_index(drop=True)
+    frame.to_csv(path, index=False, **to_csv)
+    return frame
+
+
+def _cut_in_last_number(text):
+    return text.rstrip("\n")[:-3]  # a number cut short, no line break
+
+
+def _cut_in_last_line(text):
+    body = text.rstrip("\n")
+    return body[: body.rfind("\n") + 40]  # the line stops after a few fields
+
+
+def _cut_with_line_break(text):
+    return _cut_in_last_line(text) + "\n"  # fewer fields than the header, then a break
+
+
+@pytest.mark.parametrize("cut", [_cut_in_last_number, _cut_in_last_line, _cut_with_line_break])
+@pytest.mark.parametrize("suffix", [".csv", ".csv.gz"])
+def test_cut_last_line_is_dropped_with_a_warning(tmp_path, cut, suffix):
+    """A recording interrupted while written: its last line is dropped, with a warning naming the file."""
+    import gzip
+
+    frame = _recording_csv(tmp_path / "full.csv")
+    text = cut((tmp_path / "full.csv").read_text())
+    path = tmp_path / f"cut{suffix}"
+    path.write_bytes(gzip.compress(text.encode()) if suffix == ".csv.gz" else text.encode())
+    with pytest.warns(TruncatedFileWarning, match=rf"cut\.csv(\.gz)?: the last line .*dropped"):
+        X_read, y_read = read_recording(path)
+    expected, y_expected = read_recording(tmp_path / "full.csv")
+    pd.testing.assert_frame_equal(X_read, expected.iloc[:-1])
+    np.testing.assert_array_equal(y_read, y_expected[:-1])
+    assert len(X_read) == len(frame) - 1
+
+
+@pytest.mark.parametrize(
+    "sep, decimal", [(";", ","), (";", "."), ("\t", ",")], ids=["semicolon-comma", "semicolon-point", "tab-comma"]
+)
+def test_european_csv_is_read_like_the_standard_one(tmp_path, sep, decimal):
+    """The delimiter and the decimal mark are found in the file."""
+    _recording_csv(tmp_path / "standard.csv")
+    _recording_csv(tmp_path / "lab.csv", sep=sep, decimal=decimal)
+    X_std, y_std = read_recording(tmp_path / "standard.csv")
+    X_lab, y_lab = read_recording(tmp_path / "lab.csv")
+    pd.testing.assert_frame_equal(X_lab, X_std)
+    np.testing.assert_array_equal(y_lab, y_std)
+
+
+def test_decimal_commas_in_a_comma_file_are_refused(tmp_path):
+    """Decimal commas split the numbers of a ','-delimited file: said as such, not as a missing column."""
+    _recording_csv(tmp_path / "lab.csv", sep=";", decimal=",")
+    path = tmp_path / "mixed.csv"
+    path.write_text((tmp_path / "lab.csv").read_text().replace(";", ","))
+    match = (
+        r"mixed\.csv: line 2 has \d+ fields but the header has 15 \(delimiter ','\).*"
+        r"decimal commas \(12,5\).*';' as the delimiter, or with decimal points"
+    )
+    with pytest.raises(ValueError, match=match):
+        read_recording(path)
+
+
+def _write_bytes(data):
+    def write(path):
+        path.write_bytes(data)
+    return write
+
+
+def _gzip_cut(path):
+    import gzip
+
+    X, y = tiny_recordings(n_runs=1, seed=1)
+    text = _standard_file(X, y).assign(run="cut").to_csv(index=False)
+    data = gzip.compress(text.encode())
+    path.write_bytes(data[: len(data) // 2])
+
+
+def _ros_bag(kind):
+    """A ROS bag broken in one way; skipped without rosbags."""
+
+    def write(path):
+        pytest.importorskip("rosbags")
+        from test_readers import _write_bag
+
+        ros1 = kind.startswith("bag")
+        _write_bag(path, ros1=ros1)
+        if kind == "bag-random":
+            path.write_bytes(np.random.default_rng(0).bytes(600))
+        elif kind == "bag-cut":
+            path.write_bytes(path.read_bytes()[:300])
+        elif kind == "db3-random":
+            (path / f"{path.name}.db3").write_bytes(np.random.default_rng(0).bytes(3000))
+        elif kind == "yaml-broken":
+            (path / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n : :")
+
+    return write
+
+
+def _read_bag(path):
+    from test_readers import CONFIG
+
+    from skcath.io import read_rosbag
+
+    read_rosbag(path, CONFIG, tolerance=0.005, catheter="A", setting="s", n_sweep=5)
+
+
+def _read_as_streams(path):
+    X, y = tiny_recordings(n_runs=1)
+    read_streams(path, _standard_file(X, y)[["t", *TARGET]], tolerance=0.01)
+
+
+def _read_folder(path):
+    from skcath.io import read_recordings
+
+    _recording_csv(path.with_name("a_good.csv"))
+    read_recordings(path.parent, n_sweep=None, progress=False)
+
+
+def _read_ndi(path):
+    from skcath.io import read_ndi_csv
+
+    read_ndi_csv(path, tip="0A")
+
+
+UNREADABLE = [
+    pytest.param("rec.csv.gz", _gzip_cut, read_recording, r"ends early.*EOFError", id="cut-csv-gz"),
+    pytest.param("rec.csv.gz", _write_bytes(b"plain text, not gzip"), read_recording,
+                 r"not compressed as its suffix says.*BadGzipFile", id="not-gzip"),
+    pytest.param("rec.csv", _write_bytes(bytes(range(128, 256)) * 8), read_recording,
+                 r"not UTF-8 text.*UnicodeDecodeError", id="binary-csv"),
+    pytest.param("rec.csv", _write_bytes(b"\x00" * 64), read_recording, r"NUL bytes",
+                 id="nul-bytes-csv"),
+    pytest.param("rec.csv", _write_bytes(b""), read_recording, r"the file is empty",
+                 id="zero-byte-csv"),
+    pytest.param("rec.parquet", _write_bytes(b"PAR1 not really"), read_recording,
+                 r"cannot be read as Parquet.*ArrowInvalid", id="broken-parquet"),
+    pytest.param("rec.csv", _write_bytes(bytes(range(128, 256))), _read_as_streams,
+                 r"not UTF-8 text", id="binary-motor-log"),
+    pytest.param("z_broken.csv.gz", _gzip_cut, _read_folder, r"ends early", id="folder-with-cut-gz"),
+    pytest.param("aurora.csv", _write_bytes(bytes(range(128, 256))), _read_ndi,
+                 r"not UTF-8 text", id="binary-ndi-export"),
+    pytest.param("session.bag", _ros_bag("bag-random"), _read_bag,
+                 r"cannot be read as a ROS bag: .*UnicodeDecodeError", id="random-bag"),
+    pytest.param("session.bag", _ros_bag("bag-cut"), _read_bag,
+                 r"cannot be read as a ROS bag: .*AnyReaderError", id="cut-bag"),
+    pytest.param("session", _ros_bag("db3-random"), _read_bag,
+                 r"cannot be read as a ROS bag: .*not a database", id="broken-db3"),
+    pytest.param("session", _ros_bag("yaml-broken"), _read_bag,
+                 r"cannot be read as a ROS bag: .*YAML", id="broken-metadata-yaml"),
+]
+
+
+@pytest.mark.parametrize("name, write, read, match", UNREADABLE)
+def test_unreadable_file_error_names_the_file(tmp_path, name, write, read, match):
+    """Whatever the parser finds, the reader's error is a ValueError that starts with the file name."""
+    path = tmp_path / name
+    write(path)
+    with pytest.raises(ValueError, match=re.escape(f"{name}: ") + r"(.|\n)*" + match) as info:
+        read(path)
+    assert str(info.value).startswith(f"{name}: ")
+
+
+def _clock_streams(tracker_factor=1.0, shift=0.0):
+    """A motor log at 100 Hz (s) and a tracker log at 40 Hz, its clock scaled and shifted."""
+    X, y = tiny_recordings(n_runs=1, n_sweep=200, n_motion=400)
+    motors = X.drop(columns=REFERENCE).reset_index(drop=True).assign(t=np.arange(len(X)) / 100.0)
+    tracker = pd.DataFrame(y[::5], columns=TARGET).assign(t=(np.arange(len(y[::5])) / 20.0 + shift))
+    return motors, tracker.assign(t=tracker["t"] * tracker_factor)
+
+
+MISALIGNED = [
+    pytest.param(
+        {"tracker_factor": 1000.0},
+        r"the two clocks count in different units: the motor clock spans 5\.99 \(0 to 5\.99\) "
+        r"and the tracker clock 5950 \(0 to 5950\).*tracker counts in ms and the motors in s\. "
+        r"Pass tracker_time_scale=0\.001",
+        {"tracker_time_scale": 1e-3},
+        id="tracker-clock-in-ms",
+    ),
+    pytest.param(
+        {"shift": 60.0},
+        r"aligned streams: 600 of the 600 motor samples \(100\.0 %\) found no tracker sample "
+        r"within tolerance=0\.006, more than max_unmatched=0\.9.*from 0 to 5\.99.*from 60 to "
+        r"65\.95.*latency='start'",
+        {"latency": "start"},
+        id="streams-not-overlapping",
+    ),
+]
+
+
+@pytest.mark.parametrize("streams, match, fix", MISALIGNED)
+def test_misaligned_streams_are_refused(streams, match, fix):
+    """Clocks in other units, or streams that do not meet: refused, with the fix to pass."""
+    motors, tracker = _clock_streams(**streams)
+    with pytest.raises(ValueError, match=match):
+        read_streams(motors, tracker, tolerance=0.006)
+    # the fix named aligns them as well as streams on one clock in seconds
+    _, y, report = read_streams(motors, tracker, tolerance=0.006, **fix)
+    _, y_same, report_same = read_streams(*_clock_streams(), tolerance=0.006)
+    np.testing.assert_array_equal(y, y_same)
+    assert report.n_unmatched == report_same.n_unmatched < 0.9 * len(motors)
 
 
 # ---------------------------------------------------------------------------

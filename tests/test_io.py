@@ -3,6 +3,7 @@
 import dataclasses
 import inspect
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from skcath._format import REQUIRED_COLUMNS, SENSOR_POSE_COLUMNS
 from skcath._validation import check_recordings
+from skcath.exceptions import TruncatedFileWarning
 from skcath.frames import quaternion_to_rotation
 from skcath.io import read_recording
 from skcath.io._options import OPTION_NAMES, ReadingOptions
@@ -661,3 +663,140 @@ def test_tee_hysteresis_between_loading_and_unloading(tee):
         assert gap > 4.0, (name, gap)
         assert y[rising].std(axis=0).max() < 1.0
         assert y[falling].std(axis=0).max() < 1.0
+
+
+# ---------------------------------------------------------------------------
+# CSV text: compression, dialect, cut last line, unreadable files
+# ---------------------------------------------------------------------------
+def _text_of(frame, **to_csv):
+    return frame.to_csv(index=False, **to_csv)
+
+
+def _compressed(path, text):
+    """Write ``text`` to ``path``, compressed as its suffix says."""
+    import bz2
+    import gzip
+    import lzma
+    import zipfile
+
+    data = text.encode()
+    if path.name.endswith(".zip"):
+        with zipfile.ZipFile(path, "w") as archive:
+            archive.writestr("inner.csv", data)
+        return path
+    openers = {".gz": gzip.compress, ".bz2": bz2.compress, ".xz": lzma.compress}
+    path.write_bytes(openers.get(path.suffix, bytes)(data))
+    return path
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".csv.gz", ".csv.bz2", ".csv.xz", ".csv.zip"])
+def test_semicolon_decimal_comma_in_every_compression(tmp_path, poses, suffix):
+    frame = _standard_frame(poses)
+    X_ref, y_ref = read_recording(_write(frame, tmp_path / "ref.csv"))
+    path = _compressed(tmp_path / f"lab{suffix}", _text_of(frame, sep=";", decimal=","))
+    X, y = read_recording(path)
+    pd.testing.assert_frame_equal(X, X_ref)
+    np.testing.assert_array_equal(y, y_ref)
+
+
+def test_windows_line_ends_and_byte_order_mark(tmp_path, poses):
+    frame = _standard_frame(poses)
+    X_ref, y_ref = read_recording(_write(frame, tmp_path / "ref.csv"))
+    path = tmp_path / "excel.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + _text_of(frame, sep=";", decimal=",", lineterminator="\r\n").encode())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a complete file: no warning
+        X, y = read_recording(path)
+    pd.testing.assert_frame_equal(X, X_ref)
+    np.testing.assert_array_equal(y, y_ref)
+
+
+def test_trailing_blank_lines_are_not_a_cut_line(tmp_path, poses):
+    path = tmp_path / "rec.csv"
+    path.write_text(_text_of(_standard_frame(poses)) + "\n \n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        X, _ = read_recording(path)
+    assert len(X) == N
+
+
+def test_last_line_without_line_break_is_dropped_even_if_complete(tmp_path, poses):
+    """Documented: a missing final line break is the sign of a cut file; the line is not read."""
+    path = tmp_path / "handmade.csv"
+    path.write_text(_text_of(_standard_frame(poses)).rstrip("\n"))
+    with pytest.warns(TruncatedFileWarning, match=r"handmade\.csv: the last line does not end"):
+        X, _ = read_recording(path)
+    assert len(X) == N - 1
+
+
+def test_header_without_line_break_is_a_file_without_rows(tmp_path, poses):
+    path = tmp_path / "rec.csv"
+    path.write_text(_text_of(_standard_frame(poses).iloc[:0]).rstrip("\n"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"rec\.csv: the file has no rows"):
+            read_recording(path)
+
+
+def test_mixed_decimal_marks_are_refused(tmp_path, poses):
+    text = _text_of(_standard_frame(poses), sep=";", decimal=",")
+    lines = text.split("\n")
+    lines[3] = lines[3].replace(",", ".")
+    path = tmp_path / "mixed.csv"
+    path.write_text("\n".join(lines))
+    with pytest.raises(ValueError, match=r"mixed\.csv: .*decimal commas \(e\.g\. '.*'\) and with "
+                                         r"decimal points \(e\.g\. '.*'\)"):
+        read_recording(path)
+
+
+def test_wider_line_in_semicolon_file_is_refused(tmp_path, poses):
+    lines = _text_of(_standard_frame(poses), sep=";").split("\n")
+    lines[4] += ";7"
+    path = tmp_path / "wide.csv"
+    path.write_text("\n".join(lines))
+    with pytest.raises(ValueError, match=r"wide\.csv: line 5 has \d+ fields but the header has "
+                                         r"\d+ \(delimiter ';'\); every line needs one field per "
+                                         r"column\.$"):
+        read_recording(path)
+
+
+def test_zip_archive_must_hold_one_file(tmp_path, poses):
+    import zipfile
+
+    path = tmp_path / "two.csv.zip"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("a.csv", _text_of(_standard_frame(poses)))
+        archive.writestr("b.csv", _text_of(_standard_frame(poses)))
+    with pytest.raises(ValueError, match=r"two\.csv\.zip: the zip archive holds 2 files"):
+        read_recording(path)
+
+
+def test_parser_errors_are_chained_and_name_the_file(tmp_path, poses):
+    import gzip
+
+    data = gzip.compress(_text_of(_standard_frame(poses)).encode())
+    path = tmp_path / "rec.csv.gz"
+    path.write_bytes(data[:-20])
+    with pytest.raises(ValueError, match=r"^rec\.csv\.gz: cannot be read as CSV: ") as info:
+        read_recording(path)
+    assert isinstance(info.value.__cause__, EOFError)
+
+
+def test_errors_that_name_the_file_pass_unchanged(tmp_path):
+    from skcath.io._errors import naming_the_file
+
+    path = tmp_path / "rec.csv"
+    own = ValueError("rec.csv: a message of the reader")
+    for exc in (own, FileNotFoundError(2, "No such file", str(path)), ImportError("pip install x")):
+        with pytest.raises(type(exc)) as info:
+            with naming_the_file(path, "CSV"):
+                raise exc
+        assert info.value is exc
+    with pytest.raises(ValueError, match=r"^rec\.csv: cannot be read as CSV: \(KeyError: 'x'\)$"):
+        with naming_the_file(path, "CSV"):
+            raise KeyError("x")
+
+
+def test_missing_file_is_a_file_not_found_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothing.csv"):
+        read_recording(tmp_path / "nothing.csv")

@@ -611,3 +611,106 @@ def test_read_recordings_manifest_with_an_empty_id_cell(tmp_path):
     )
     X, _ = read_recordings(manifest=tmp_path / "manifest.csv", progress=False)
     assert "7" in set(X["run"].astype(str))
+
+
+# ---------------------------------------------------------------------------
+# dialects, cut and unreadable files, clock units, unmatched samples
+# ---------------------------------------------------------------------------
+def test_read_ndi_csv_semicolon_decimal_comma(tmp_path):
+    t = np.arange(10) * 0.025
+    _ndi_wide(tmp_path / "aurora.csv", t)
+    text = (tmp_path / "aurora.csv").read_text()
+    (tmp_path / "lab.csv").write_text(text.replace(",", ";").replace(".", ","))
+    reference = read_ndi_csv(tmp_path / "aurora.csv", tip="0A", base="0B")
+    pd.testing.assert_frame_equal(read_ndi_csv(tmp_path / "lab.csv", tip="0A", base="0B"), reference)
+
+
+def test_read_ndi_csv_drops_a_cut_last_line(tmp_path):
+    from skcath.exceptions import TruncatedFileWarning
+
+    t = np.arange(10) * 0.025
+    _ndi_wide(tmp_path / "aurora.csv", t)
+    text = (tmp_path / "aurora.csv").read_text()
+    (tmp_path / "cut.csv").write_text(text[:-25])
+    with pytest.warns(TruncatedFileWarning, match=r"cut\.csv: the last line does not end"):
+        stream = read_ndi_csv(tmp_path / "cut.csv", tip="0A", base="0B")
+    reference = read_ndi_csv(tmp_path / "aurora.csv", tip="0A", base="0B")
+    pd.testing.assert_frame_equal(stream, reference.iloc[:-1])
+
+
+def test_read_ndi_csv_file_errors_name_the_file(tmp_path):
+    (tmp_path / "empty.csv").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"^empty\.csv: the file is empty"):
+        read_ndi_csv(tmp_path / "empty.csv", tip="0A")
+    (tmp_path / "long.csv").write_text("Tool,Q0,Qx,Qy,Qz,Tx,Ty,Tz\n1,1,0,0,0,1,2,3\n2,1,0,0,0,1,2,3\n")
+    with pytest.raises(ValueError, match=r"neither a frame number nor a timestamp.*Header: \["):
+        read_ndi_csv(tmp_path / "long.csv", tip=1)
+
+
+def test_align_streams_tracker_time_scale():
+    motors = _motor_stream()
+    t_tracker = np.arange(0, 0.6, 0.02)
+    tracker, _ = _tracker_stream(t_tracker)
+    reference, expected = align_streams(motors, tracker, tolerance=0.005)
+    in_ms = tracker.assign(t=(t_tracker + 2.0) * 1000.0)  # other origin, ms
+    aligned, report = align_streams(
+        motors, in_ms, tolerance=0.005, tracker_time_scale=1e-3, latency="start"
+    )
+    assert report.offset == pytest.approx(2.0)  # in the motor's unit
+    assert report.n_unmatched == expected.n_unmatched
+    assert_allclose(aligned["tip_px"], reference["tip_px"])
+    assert_allclose(aligned["tracker_time"], (reference["tracker_time"] + 2.0) * 1000.0)
+    for bad in (0.0, -1.0, np.inf, "ms"):
+        with pytest.raises(ValueError, match="tracker_time_scale must be a positive finite"):
+            align_streams(motors, tracker, tolerance=0.005, tracker_time_scale=bad)
+
+
+def test_unit_power_of_two_clocks():
+    from skcath.io._align import _unit_power
+
+    assert _unit_power(6.0, 6.0) == 0
+    assert _unit_power(6.0, 200.0) == 0  # a factor 33: no unit
+    assert _unit_power(6.0, 6000.0) == 3
+    assert _unit_power(6.0, 15000.0) == 3  # within a factor 3 of 1000
+    assert _unit_power(6.0, 30000.0) == 0
+    assert _unit_power(6000.0, 6.0) == -3
+    assert _unit_power(6.0, 6e6) == 6 and _unit_power(6.0, 6e9) == 9
+    assert _unit_power(0.0, 5.0) == 0
+
+
+def test_read_streams_unit_check_is_skipped_for_a_given_scale():
+    motors = _motor_stream(n=40)
+    tracker, _ = _tracker_stream(np.arange(0, 0.4, 0.02) * 1000.0)  # looks like ms
+    kwargs = {"tolerance": 0.005, "catheter": "A", "setting": "s", "n_sweep": 10}
+    with pytest.raises(ValueError, match="count in different units"):
+        read_streams(motors, tracker, **kwargs)
+    # stating one unit skips the unit check; the alignment itself is then refused
+    with pytest.raises(ValueError, match=r"found no tracker sample.*max_unmatched=0\.9"):
+        read_streams(motors, tracker, tracker_time_scale=1.0, **kwargs)
+    _, y, report = read_streams(motors, tracker, tracker_time_scale=1.0, max_unmatched=1.0, **kwargs)
+    assert report.fraction_unmatched > 0.9
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, np.nan, "all"])
+def test_max_unmatched_must_be_a_fraction(bad):
+    motors, tracker = _motor_stream(n=10), _tracker_stream(np.arange(5) * 0.02)[0]
+    with pytest.raises(InvalidParameterError, match="'max_unmatched' parameter of read_streams"):
+        read_streams(motors, tracker, tolerance=0.01, max_unmatched=bad)
+
+
+def test_read_rosbag_refuses_mostly_unmatched_messages(tmp_path):
+    path = tmp_path / "bag"
+    _write_bag(path, ros1=False)
+    kwargs = {"tolerance": 0.005, "catheter": "A", "setting": "s", "n_sweep": 5}
+    with pytest.raises(ValueError, match=r"^bag: \d+ of the 30 motor samples .*max_unmatched=0\.1"):
+        read_rosbag(path, CONFIG, max_unmatched=0.1, **kwargs)
+    with pytest.raises(ValueError, match=r"^bag: 30 of the 30 motor samples \(100\.0 %\)"):
+        read_rosbag(path, CONFIG, latency=5.0, **kwargs)
+    with pytest.raises(InvalidParameterError, match="'max_unmatched' parameter of read_rosbag"):
+        read_rosbag(path, CONFIG, max_unmatched=2, **kwargs)
+
+
+def test_unreadable_manifest_names_the_file(tmp_path):
+    (tmp_path / "manifest.csv").write_bytes(bytes(range(128, 256)))
+    with pytest.raises(ValueError, match=r"^manifest\.csv: cannot be read as a CSV manifest"):
+        read_recordings(manifest=tmp_path / "manifest.csv", progress=False)

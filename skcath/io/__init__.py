@@ -9,7 +9,11 @@
 - :func:`read_recordings`: many runs at once, ids from the file names or a
   manifest.
 
-See ``docs/data_format.rst`` for the long format and the column names.
+CSV files are read as UTF-8 text with the delimiter and decimal mark found
+in the file; a cut last line is dropped with a
+:class:`~skcath.exceptions.TruncatedFileWarning`, and a file that cannot be
+read is a ValueError naming the file. See ``docs/data_format.rst`` for the
+long format, the column names and how files are read.
 """
 
 from ._align import AlignmentReport, align_streams, read_streams

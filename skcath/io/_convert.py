@@ -35,6 +35,11 @@ VALID_STRINGS = frozenset({"ok", "valid", "true", "yes"})
 # ---------------------------------------------------------------------------
 # the source table and its columns
 # ---------------------------------------------------------------------------
+def _found(frame):
+    """``"file columns: [...]"``: the columns of ``frame``, for the end of a message."""
+    return f"file columns: {[str(c) for c in frame.columns]}"
+
+
 @dataclass(frozen=True, eq=False)
 class _Source:
     """A source table with the file column of every skcath name found in it.
@@ -88,8 +93,8 @@ class _Source:
                 if file_column not in present:
                     raise ValueError(
                         f"{label}: columns maps {name!r} to the file column "
-                        f"{file_column!r}, which the file does not have; file columns: "
-                        f"{list(frame.columns)}."
+                        f"{file_column!r}, which the file does not have; "
+                        f"{_found(frame)}."
                     )
                 columns[name] = file_column
             elif name in present:
@@ -98,7 +103,8 @@ class _Source:
             if name not in columns:
                 raise ValueError(
                     f"{label}: scale has a factor for {name!r}, which is not read "
-                    "from the file (the file has no such column after mapping)."
+                    f"from the file (the file has no such column after mapping); "
+                    f"{_found(frame)}."
                 )
         return cls(frame, columns, scale, label)
 
@@ -107,6 +113,11 @@ class _Source:
 
     def __len__(self):
         return len(self.frame)
+
+    @property
+    def found(self):
+        """``"file columns: [...]"``, the columns of the table, for messages."""
+        return _found(self.frame)
 
     def describe(self, name):
         """Describe a skcath column and its file column for error messages."""
@@ -237,7 +248,8 @@ def _id_values(source, given, default_run):
         if value is None:
             raise ValueError(
                 f"{source.label}: the file has no {name!r} column; pass {name}=... to "
-                f"read_recording or map the file column with columns={{{name!r}: ...}}."
+                f"read_recording or map the file column with columns={{{name!r}: ...}}; "
+                f"{source.found}."
             )
         ids[name] = pd.Series([value] * len(source))
     return ids
@@ -275,7 +287,8 @@ def _time_values(source, codes, rate_hz):
     if rate_hz is None:
         raise ValueError(
             f"{source.label}: the file has no time column {TIME!r}; pass rate_hz "
-            f"(sampling rate, Hz) or map the time column with columns={{{TIME!r}: ...}}."
+            f"(sampling rate, Hz) or map the time column with columns={{{TIME!r}: ...}}; "
+            f"{source.found}."
         )
     return run_steps(codes) / float(rate_hz)
 
@@ -329,7 +342,8 @@ def _phase_values(source, codes, runs, phase, n_sweep):
         raise ValueError(
             f"{label}: the file has no {PHASE!r} column; pass n_sweep (the first "
             f"n_sweep samples of each run are the sweep), phase={SWEEP!r} or "
-            f"phase={MOTION!r}, or map the column with columns={{{PHASE!r}: ...}}."
+            f"phase={MOTION!r}, or map the column with columns={{{PHASE!r}: ...}}; "
+            f"{source.found}."
         )
     sizes = np.bincount(codes, minlength=len(runs))
     short = np.flatnonzero(sizes < n_sweep)
@@ -374,7 +388,8 @@ def _channel(source, constants, name):
         return np.full(len(source), constants[name], dtype=np.float64)
     raise ValueError(
         f"{source.label}: the file has no {name!r} column; map it with "
-        f"columns={{{name!r}: ...}} or set it with constants={{{name!r}: value}}."
+        f"columns={{{name!r}: ...}} or set it with constants={{{name!r}: value}}; "
+        f"{source.found}."
     )
 
 
@@ -406,7 +421,7 @@ def _valid_rows(source, column, accepted):
     if column not in frame.columns:
         raise ValueError(
             f"{source.label}: valid names the status column {column!r}, which the file "
-            f"does not have; file columns: {list(frame.columns)}."
+            f"does not have; {source.found}."
         )
     status = frame[column]
     present = status.notna().to_numpy(dtype=bool)
@@ -473,13 +488,15 @@ def _target_values(source, tip_offset, invalid):
     if tip_offset is not None:
         raise ValueError(
             f"{source.label}: tip_offset needs the sensor-pose columns, but the file "
-            f"lacks {missing_pose}; map them with columns=... or drop tip_offset."
+            f"lacks {missing_pose}; map them with columns=... or drop tip_offset; "
+            f"{source.found}."
         )
     if missing_target:
         raise ValueError(
             f"{source.label}: no target found. The file needs either the sensor-pose "
             f"columns (missing: {missing_pose}) or the base-frame tip columns "
-            f"{list(TARGET_NAMES)} (missing: {missing_target}); map them with columns=..."
+            f"{list(TARGET_NAMES)} (missing: {missing_target}); map them with "
+            f"columns=...; {source.found}."
         )
     y = source.stack(TARGET_NAMES)
     y[invalid] = np.nan
@@ -515,7 +532,7 @@ def _reference_values(source, y, sweep, invalid):
         raise ValueError(
             f"{source.label}: the file has the reference column(s) {found} but not "
             f"{missing}; give all three or none (then they are taken from the "
-            "target on sweep rows)."
+            f"target on sweep rows); {source.found}."
         )
     if found:
         ref = source.stack(REFERENCE_COLUMNS)

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 
 from .._format import CATHETER, ID_COLUMNS, RUN, SETTING
 from .._validation import check_recordings
+from ._errors import naming_the_file
 from ._options import OPTION_NAMES, check_option_names
 from ._recording import CSV_SUFFIXES, PARQUET_SUFFIXES, file_kind, read_recording
 
@@ -109,8 +110,8 @@ def _read_manifest(manifest):
     Raises
     ------
     ValueError
-        If the manifest has no ``path`` column or lists a file that does not
-        exist.
+        If the manifest cannot be read as CSV, has no ``path`` column or
+        lists a file that does not exist.
     """
     if isinstance(manifest, pd.DataFrame):
         table, root, name = manifest, Path("."), "manifest"
@@ -118,7 +119,9 @@ def _read_manifest(manifest):
         manifest = Path(manifest)
         if not manifest.is_file():
             raise ValueError(f"manifest: no such file {str(manifest)!r}.")
-        table, root, name = pd.read_csv(manifest), manifest.parent, manifest.name
+        with naming_the_file(manifest, "a CSV manifest"):
+            table = pd.read_csv(manifest)
+        root, name = manifest.parent, manifest.name
     if _MANIFEST_PATH not in table.columns:
         raise ValueError(
             f"{name}: the manifest needs a {_MANIFEST_PATH!r} column; columns: "

@@ -13,6 +13,7 @@ raw sensor-pose columns of skcath (``tip_px ... base_qz``), one row per frame.
 """
 
 import csv
+import io
 import numbers
 import re
 from pathlib import Path
@@ -22,6 +23,8 @@ import pandas as pd
 
 from .._format import SENSOR_POSE_COLUMNS
 from .._validation import check_quat_order
+from ._csv import read_csv_text
+from ._errors import naming_the_file
 
 __all__ = ["read_ndi_csv"]
 
@@ -50,6 +53,10 @@ def _key(name):
 def _read_rows(path):
     """Read the header and the rows of a CSV file as text, rows padded.
 
+    The file is read by :func:`~skcath.io._csv.read_csv_text`: its delimiter
+    and decimal mark are found in the text (decimal commas become points),
+    and a cut last line is dropped with a warning.
+
     Parameters
     ----------
     path : pathlib.Path
@@ -65,16 +72,17 @@ def _read_rows(path):
     Raises
     ------
     ValueError
-        If the file is empty.
+        If the file cannot be read, is empty or has no rows; the message
+        names the file.
     """
-    with open(path, newline="", encoding="utf-8-sig") as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [cell.strip() for cell in next(reader)]
-        except StopIteration:
-            raise ValueError(f"{path.name}: the file is empty.") from None
+    found = read_csv_text(path, wider_rows=True)
+    with naming_the_file(path, "CSV"):
+        reader = csv.reader(io.StringIO(found.text, newline=""), delimiter=found.sep)
+        header = [cell.strip() for cell in next(reader)]
         n = len(header)
         rows = [(row + [""] * n)[:n] for row in reader if any(c.strip() for c in row)]
+    if found.decimal == ",":
+        rows = [[cell.replace(",", ".") for cell in row] for row in rows]
     if not rows:
         raise ValueError(f"{path.name}: the file has a header but no rows.")
     return header, rows
@@ -138,7 +146,8 @@ def _tool_blocks(header, path):
         if position is None:
             raise ValueError(
                 f"{path.name}: the quaternion columns {header[start : start + 4]} "
-                "are not followed by position columns (Tx, Ty, Tz or x, y, z)."
+                f"are not followed by position columns (Tx, Ty, Tz or x, y, z). "
+                f"Header: {header}."
             )
         blocks.append(
             {
@@ -298,7 +307,7 @@ def _frame_meta(rows, header, path):
     return meta
 
 
-def _frame_key(wide, meta, path):
+def _frame_key(wide, meta, header, path):
     """Columns that identify a frame: the file row (wide), else frame number or time."""
     if wide:
         return ["row"]
@@ -308,7 +317,7 @@ def _frame_key(wide, meta, path):
         return ["t"]
     raise ValueError(
         f"{path.name}: one row per tool but neither a frame number nor a "
-        "timestamp column to match the tools of one frame."
+        f"timestamp column to match the tools of one frame. Header: {header}."
     )
 
 
@@ -361,7 +370,9 @@ def read_ndi_csv(
         Tx, Ty, Tz[, Error]``, or one row per tool per frame (*long*) with a
         tool column. Header names are matched case-insensitively, ignoring
         spaces and underscores. Columns that follow the block (markers, ...)
-        are ignored.
+        are ignored. The delimiter and decimal mark are found in the file,
+        and a cut last line is dropped with a warning, as in
+        :func:`skcath.io.read_recording`.
     tip : str or int
         Tool carrying the tip sensor: the value of its tool column (port
         handle such as ``"0A"`` or ``10``, port, or tool name, compared as
@@ -393,9 +404,15 @@ def read_ndi_csv(
     Raises
     ------
     ValueError
-        If the file has no quaternion/position block, a tool is not found
-        (the message lists the tools present), a tool appears twice in one
-        frame, or a tracked pose cell is not a number.
+        If the file cannot be read (the message starts with the file name),
+        has no quaternion/position block (the message shows the header), a
+        tool is not found (the message lists the tools present), a tool
+        appears twice in one frame, or a tracked pose cell is not a number.
+
+    Warns
+    -----
+    skcath.exceptions.TruncatedFileWarning
+        When the last line looks cut; it is dropped.
 
     Notes
     -----
@@ -417,7 +434,7 @@ def read_ndi_csv(
     blocks = _tool_blocks(header, path)
     poses = _block_poses(rows, header, blocks, accepted, quat_order, path)
     meta = _frame_meta(rows, header, path)
-    key = _frame_key(len(blocks) > 1 or poses["tool"].nunique() <= 1, meta, path)
+    key = _frame_key(len(blocks) > 1 or poses["tool"].nunique() <= 1, meta, header, path)
     poses = poses.merge(meta, on="row", how="left")
     frames = meta.drop_duplicates(subset=key, keep="first") if key != ["row"] else meta
 

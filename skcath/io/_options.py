@@ -88,11 +88,20 @@ def _check_group(key, value, quat_order, columns):
     ------
     ValueError
         If ``value`` is not 3 (position) or 4 (orientation, in the order
-        ``quat_order``) file column names, or ``columns`` also maps one of
-        the group's components.
+        ``quat_order``) file column names, an orientation group is given
+        without ``quat_order``, or ``columns`` also maps one of the group's
+        components.
     """
     names = SENSOR_POSE_COLUMNS[key]
     if key in _ORIENTATION_GROUPS:
+        if quat_order is None:
+            raise ValueError(
+                f"columns[{key!r}] maps the {key.replace('_', ' ')} to the file columns "
+                f"{value!r}, but quat_order is not given and skcath does not guess the "
+                "component order: pass quat_order='wxyz' if they are w, x, y, z (scalar "
+                "first) or quat_order='xyzw' if they are x, y, z, w (scalar last), or map "
+                f"the components by name ({key.split('_')[0]}_qw, ...)."
+            )
         prefix = key.split("_")[0]
         names = tuple(f"{prefix}_q{c}" for c in quat_order)
         expected = f"4 file column names in the order {quat_order!r}"
@@ -124,8 +133,9 @@ def _check_columns(columns, quat_order):
         ``tip_position``, ``base_position`` (3 file columns x, y, z) and
         ``tip_orientation``, ``base_orientation`` (4 file columns in the order
         ``quat_order``). Values: file column names.
-    quat_order : {"wxyz", "xyzw"}
-        Component order of the file columns listed for an orientation group.
+    quat_order : {"wxyz", "xyzw"} or None
+        Component order of the file columns listed for an orientation group;
+        None when not given (then no orientation group may be mapped).
 
     Returns
     -------
@@ -136,8 +146,8 @@ def _check_columns(columns, quat_order):
     ------
     ValueError
         If a key is unknown, a value is not a column name (or a sequence of
-        3 or 4 names for a group), or a group and one of its components are
-        both given.
+        3 or 4 names for a group), an orientation group is given without
+        ``quat_order``, or a group and one of its components are both given.
     """
     mapping = {}
     for key, value in _items(columns, "columns", "file column names"):
@@ -295,8 +305,10 @@ class ReadingOptions:
     columns : mapping of str to str
         skcath name -> file column name, the sensor groups expanded to their
         components (empty when no column is mapped).
-    quat_order : {"wxyz", "xyzw"}
-        Component order of the orientation groups given in ``columns``.
+    quat_order : {"wxyz", "xyzw"} or None
+        Component order of the orientation groups given in ``columns``; None
+        when not given, which is allowed only when ``columns`` maps no
+        orientation group.
     catheter, setting, run : str, int or None
         Id of all rows, for files without that column.
     rate_hz : float or None
@@ -324,7 +336,7 @@ class ReadingOptions:
     """
 
     columns: object = None
-    quat_order: str = "wxyz"
+    quat_order: object = None
     catheter: object = None
     setting: object = None
     run: object = None
@@ -337,7 +349,7 @@ class ReadingOptions:
     tip_offset: object = None
 
     def __post_init__(self):
-        quat_order = check_quat_order(self.quat_order)
+        quat_order = None if self.quat_order is None else check_quat_order(self.quat_order)
         columns = _check_columns(self.columns, quat_order)
         constants = _check_numbers(self.constants, "constants", _CONSTANT_NAMES)
         scale = _check_numbers(_expand_scale(self.scale), "scale", _SCALABLE_NAMES, nonzero=True)

@@ -9,11 +9,14 @@ needed, and returns ``(X, y)`` in the long format described in
 :func:`~skcath.io._convert.recording_from_table`.
 """
 
+import io
 from pathlib import Path
 
 import pandas as pd
 
 from ._convert import recording_from_table
+from ._csv import read_csv_text
+from ._errors import naming_the_file
 from ._options import ReadingOptions
 
 __all__ = ["CSV_SUFFIXES", "PARQUET_SUFFIXES", "file_kind", "read_recording", "read_table"]
@@ -57,6 +60,9 @@ def file_kind(path):
 def read_table(path, kind):
     """Read the file into a DataFrame.
 
+    A CSV file is read with the delimiter and decimal mark found in its text,
+    without a cut last line (see :func:`~skcath.io._csv.read_csv_text`).
+
     Parameters
     ----------
     path : pathlib.Path
@@ -70,13 +76,23 @@ def read_table(path, kind):
 
     Raises
     ------
+    ValueError
+        If the file cannot be read as its type; the message names the file.
     ImportError
         If a Parquet file is read without a Parquet engine installed.
+
+    Warns
+    -----
+    skcath.exceptions.TruncatedFileWarning
+        When the last line of a CSV file looks cut; it is dropped.
     """
     if kind == "csv":
-        return pd.read_csv(path)
+        found = read_csv_text(path)
+        with naming_the_file(path, "CSV"):
+            return pd.read_csv(io.StringIO(found.text), sep=found.sep, decimal=found.decimal)
     try:
-        return pd.read_parquet(path)
+        with naming_the_file(path, "Parquet"):
+            return pd.read_parquet(path)
     except ImportError as exc:
         raise ImportError(
             f"Reading the Parquet file {str(path)!r} needs pyarrow: "
@@ -88,7 +104,7 @@ def read_recording(
     path,
     *,
     columns=None,
-    quat_order="wxyz",
+    quat_order=None,
     catheter=None,
     setting=None,
     run=None,
@@ -106,9 +122,10 @@ def read_recording(
     ----------
     path : str or path-like
         A ``.csv`` file (also ``.csv.gz``, ``.csv.bz2``, ``.csv.xz``,
-        ``.csv.zip``) read with :func:`pandas.read_csv`, or a ``.parquet``
-        file read with :func:`pandas.read_parquet` (needs the optional
-        dependency pyarrow).
+        ``.csv.zip``), read as UTF-8 text with the delimiter (``,``, ``;`` or
+        tab) and decimal mark (``.`` or, in a ``;`` or tab file, ``,``) found
+        in the file, or a ``.parquet`` file read with
+        :func:`pandas.read_parquet` (needs the optional dependency pyarrow).
     columns : mapping, default=None
         skcath name -> file column name, for the columns whose names differ
         (all other skcath names are looked up under their own name). Keys:
@@ -120,10 +137,13 @@ def read_recording(
         ``tip_position`` / ``base_position`` (3 file columns x, y, z) and
         ``tip_orientation`` / ``base_orientation`` (4 file columns listed in
         the order ``quat_order``).
-    quat_order : {"wxyz", "xyzw"}, default="wxyz"
+    quat_order : {"wxyz", "xyzw"}, default=None
         Component order of the 4 file columns given for an orientation group
-        in ``columns``. Quaternions mapped component by component do not
-        depend on it.
+        in ``columns``: ``"wxyz"`` (scalar first) or ``"xyzw"`` (scalar
+        last). Required when ``columns`` maps an orientation group, since
+        skcath never guesses it; quaternions read under their skcath names
+        (``tip_qw, ...``) or mapped component by component do not depend on
+        it.
     catheter, setting, run : str or int, default=None
         Id of all rows, for files without that column (giving an id that the
         file also has is an error). ``run`` defaults to the file name without
@@ -186,8 +206,14 @@ def read_recording(
     Raises
     ------
     ValueError
-        On an unsupported file suffix or an invalid argument, and for every
-        problem with the file: a mapped column that is missing, a channel that
+        On an unsupported file suffix or an invalid argument (an orientation
+        group in ``columns`` without ``quat_order`` included), and for every
+        problem with the file: a file that cannot be read (cut short
+        compressed data, bytes that are not UTF-8 text, an empty file, a
+        damaged Parquet file, a CSV line with more fields than the header; the
+        message starts with the file name and chains the parser's error), a
+        mapped column that is missing (the message lists the file's columns),
+        a channel that
         is neither in the file nor in ``constants``, non-numeric values, an
         unknown phase value, no target columns, conflicting information (an
         id, time, phase or constant given both in the file and as an
@@ -198,6 +224,16 @@ def read_recording(
         motion rows, ...).
     ImportError
         For a Parquet file when pyarrow is not installed.
+    FileNotFoundError
+        If ``path`` does not exist.
+
+    Warns
+    -----
+    skcath.exceptions.TruncatedFileWarning
+        When the last line of a CSV file looks cut (no final line break, or
+        fewer fields than the header and the line before it), as a recording
+        interrupted while the file was written leaves it; that line is
+        dropped.
 
     Notes
     -----

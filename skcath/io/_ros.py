@@ -8,14 +8,17 @@ optional package ``rosbags``, aligns them in time with
 :func:`skcath.io.read_recording`.
 """
 
+from numbers import Real
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .._format import SENSOR_POSE_COLUMNS
-from ._align import align_streams
+from ._align import MAX_UNMATCHED, align_streams, check_alignment
 from ._convert import recording_from_table
+from ._errors import naming_the_file
 from ._options import ReadingOptions
 
 __all__ = ["read_rosbag"]
@@ -215,6 +218,14 @@ def _read_bag(path, config, stamp):
     return motors, poses
 
 
+@validate_params(
+    {
+        "path": "no_validation",
+        "config": "no_validation",
+        "max_unmatched": [Interval(Real, 0, 1, closed="both")],
+    },
+    prefer_skip_nested_validation=True,
+)
 def read_rosbag(
     path,
     config,
@@ -223,6 +234,7 @@ def read_rosbag(
     latency=0.0,
     direction="nearest",
     stamp="header",
+    max_unmatched=MAX_UNMATCHED,
     **read_kwargs,
 ):
     """Read a ROS 1 or ROS 2 bag into the long format.
@@ -259,6 +271,10 @@ def read_rosbag(
     stamp : {"header", "bag"}, default="header"
         Time of a message: its header stamp, or the time the bag recorded
         it.
+    max_unmatched : float in [0, 1], default=0.9
+        Largest fraction of the joint-state messages allowed to find no
+        pose message within ``tolerance``; see
+        :func:`skcath.io.read_streams`.
     **read_kwargs
         Options of :func:`skcath.io.read_recording` (``catheter``,
         ``setting``, ``run``, ``n_sweep``, ``phase``, ``constants``,
@@ -280,9 +296,15 @@ def read_rosbag(
     ------
     ImportError
         If ``rosbags`` is not installed.
+    sklearn.utils._param_validation.InvalidParameterError
+        If ``max_unmatched`` is not a number in [0, 1].
     ValueError
         On a bad ``config`` (unknown key, missing topic or joint, wrong
-        message type) and as :func:`skcath.io.read_recording`.
+        message type); a bag that cannot be read (damaged or cut short, a
+        damaged ``metadata.yaml`` or database; the message names the bag and
+        what ``rosbags`` found); more than ``max_unmatched`` of the
+        joint-state messages without a pose message; and as
+        :func:`skcath.io.read_recording`.
 
     Notes
     -----
@@ -314,7 +336,8 @@ def read_rosbag(
     if not path.exists():
         raise ValueError(f"no such bag {str(path)!r}.")
     bag = path.parent if path.suffix in (".db3", ".mcap") else path
-    motors, poses = _read_bag(bag, config, stamp)
+    with naming_the_file(bag, "a ROS bag"):
+        motors, poses = _read_bag(bag, config, stamp)
 
     tracker = poses["tip"]
     try:
@@ -338,6 +361,10 @@ def read_rosbag(
             + (f", {config['base']!r}" if config["base"] else "")
             + f"): {exc}"
         ) from None
+    check_alignment(
+        report, motors["t"], tracker["t"], label=bag.name, max_unmatched=max_unmatched,
+        check_units=False,  # both clocks are converted from ns here
+    )
     stem = bag.name[: -len(".bag")] if bag.suffix == ".bag" else bag.name
     X, y = recording_from_table(aligned, bag.name, stem, options)
     return X, y, report
