@@ -4,7 +4,7 @@ A leaf module: it imports nothing from the package, so that every other module
 can import it.
 """
 
-__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning"]
+__all__ = ["FileSuffixWarning", "IncompatibleVersionError", "InconsistentVersionWarning"]
 
 
 class InconsistentVersionWarning(UserWarning):
@@ -44,4 +44,14 @@ class IncompatibleVersionError(ValueError):
     Raised by :func:`skcath.persist.load` before anything is unpickled; pass
     ``allow_version_mismatch=True`` to load the file anyway. See
     :func:`skcath.persist.is_compatible_version` for the rule.
+    """
+
+
+class FileSuffixWarning(UserWarning):
+    """A file written by :func:`skcath.persist.save` is not named ``*.skcath``.
+
+    The file is a zip archive that only :func:`skcath.persist.load` reads: a
+    suffix such as ``.joblib``, ``.pkl`` or ``.skops`` invites
+    ``joblib.load``, ``pickle.load`` or ``skops.io.load``, which cannot open
+    it. The file is written all the same.
     """
