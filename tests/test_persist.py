@@ -433,3 +433,23 @@ def test_suffix_skcath_is_silent(tmp_path):
         persist.save(NoResidual(), tmp_path / "a.skcath")
         persist.save(NoResidual(), tmp_path / "b.SKCATH")
     assert persist.SUFFIX == ".skcath"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks loading without a GPU")
+def test_skops_state_of_a_cuda_learner_loads_on_the_cpu(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    from skorch.exceptions import DeviceWarning
+
+    from skcath._torch_state import ResidualLearnerState
+
+    X, _ = data
+    learner = fitted("PDL", "GRU")["residual"]
+    Xb = fitted("PDL", "GRU")["backbone"].transform(X)
+    state = ResidualLearnerState.of(learner)
+    state.params["device"] = "cuda"  # as saved from a learner trained on a GPU
+    path = tmp_path / "cuda.skcath"
+    persist.save(state, path, format="skops")
+    with pytest.warns(DeviceWarning, match="no CUDA devices"):
+        loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert loaded.device == "cpu"
+    assert_array_equal(loaded.predict(Xb), learner.predict(Xb))
