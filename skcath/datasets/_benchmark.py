@@ -268,7 +268,10 @@ def make_benchmark(
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
-        Load from / save to the cache folder.
+        Load from / save to the cache folder. The cache file holds no
+        pickle and is read with ``numpy.load(..., allow_pickle=False)``; it
+        is used only when the key stored in it (``bunch.key``) matches
+        (``docs/simulator.rst``, *The cache*).
     verbose : bool, default=False
         Log generation progress at INFO level.
 
