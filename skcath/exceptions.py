@@ -4,7 +4,12 @@ A leaf module: it imports nothing from the package, so that every other module
 can import it.
 """
 
-__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning", "TruncatedFileWarning"]
+__all__ = [
+    "FileSuffixWarning",
+    "IncompatibleVersionError",
+    "InconsistentVersionWarning",
+    "TruncatedFileWarning",
+]
 
 
 class InconsistentVersionWarning(UserWarning):
@@ -56,4 +61,14 @@ class TruncatedFileWarning(UserWarning):
     file was written leaves behind. The values of such a line cannot be
     trusted (a number may be cut short), so the line is not read. The
     message names the file and shows the line.
+    """
+
+
+class FileSuffixWarning(UserWarning):
+    """A file written by :func:`skcath.persist.save` is not named ``*.skcath``.
+
+    The file is a zip archive that only :func:`skcath.persist.load` reads: a
+    suffix such as ``.joblib``, ``.pkl`` or ``.skops`` invites
+    ``joblib.load``, ``pickle.load`` or ``skops.io.load``, which cannot open
+    it. The file is written all the same.
     """

@@ -1,6 +1,7 @@
 """Save and load fitted estimators, with the versions they were fitted under.
 
-A file written by :func:`save` is a zip archive of two members:
+A file written by :func:`save` (suffix ``.skcath``) is a zip archive of two
+members:
 
 ``skcath.json``
     The versions of skcath, scikit-learn, torch, skorch, numpy and Python that
@@ -10,8 +11,15 @@ A file written by :func:`save` is a zip archive of two members:
 
 :func:`load` reads the versions first and refuses a file written by an
 incompatible skcath version (see :func:`is_compatible_version`) before it
-unpickles anything, so a changed class layout gives a clear message instead of
-an obscure unpickling error.
+deserializes anything, so a changed class layout gives a clear message instead
+of an obscure unpickling error. A file that is not such an archive, or whose
+header is damaged, raises a ``ValueError`` naming the file and the problem.
+
+The skops format stores no pickle at all: the residual learners, whose torch
+state skops cannot store, go into it as plain arrays and parameters
+(:mod:`skcath._torch_state`) and are built again on loading. It is the format
+for files shared with others; a joblib file runs code from the file when it
+is loaded.
 
 Estimators pickled directly (``pickle.dump``, ``joblib.dump``) carry the skcath
 version too: :class:`~skcath._base.RecordingsMixin` stores it in the pickled
@@ -24,22 +32,27 @@ from __future__ import annotations
 import io
 import json
 import os
+import pickle
 import platform
 import re
 import warnings
 import zipfile
+import zlib
 from importlib import metadata
+from pathlib import Path
 
 import joblib
 from sklearn.utils._param_validation import validate_params
 
+from ._torch_state import from_plain, to_plain
 from ._version import current_version
 
 # the version warning and error, public here too (their home is skcath.exceptions)
-from .exceptions import IncompatibleVersionError, InconsistentVersionWarning
+from .exceptions import FileSuffixWarning, IncompatibleVersionError, InconsistentVersionWarning
 
 __all__ = [
     "FORMATS",
+    "SUFFIX",
     "InconsistentVersionWarning",
     "IncompatibleVersionError",
     "get_untrusted_types",
@@ -51,6 +64,9 @@ __all__ = [
 
 #: Serialization formats of the estimator inside a saved file.
 FORMATS = ("joblib", "skops")
+
+#: Suffix of the files written by :func:`save`.
+SUFFIX = ".skcath"
 
 _HEADER = "skcath.json"
 _PAYLOAD = {"joblib": "estimator.joblib", "skops": "estimator.skops"}
@@ -106,6 +122,36 @@ def _versions() -> dict:
     return out
 
 
+def _check_suffix(path) -> None:
+    """Warn unless ``path`` ends in :data:`SUFFIX`: other tools cannot read the file."""
+    if Path(path).suffix.lower() != SUFFIX:
+        warnings.warn(
+            FileSuffixWarning(
+                f"{os.fspath(path)!r} does not end in {SUFFIX!r}: skcath.persist.save writes a "
+                "zip archive of a version header and the estimator, which only "
+                "skcath.persist.load reads (joblib.load, pickle.load and skops.io.load cannot). "
+                f"Name the file {Path(path).stem + SUFFIX!r}."
+            ),
+            stacklevel=4,  # the caller of save, past validate_params' wrapper
+        )
+
+
+def _skops_payload(estimator) -> bytes:
+    """The estimator in the skops format, its residual learners as plain state."""
+    import skops.io as sio
+
+    try:
+        return sio.dumps(to_plain(estimator))
+    except (TypeError, RuntimeError) as exc:
+        raise ValueError(
+            f"format='skops' cannot serialize this {type(estimator).__name__}: skops does not "
+            "store pandas DataFrames, such as a backbone's calibrations_ (with "
+            "calibration_params_, the diagnostics of its last transform, which may be deleted "
+            f"before saving), nor other objects it does not know ({exc}). Delete them, or use "
+            "format='joblib' for a file you will only load yourself."
+        ) from exc
+
+
 @validate_params(
     {
         "estimator": "no_validation",  # any object joblib can pickle
@@ -124,22 +170,34 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
     estimator : object
         Any estimator or pipeline; skcath estimators need not be fitted.
     path : str or os.PathLike
-        File to write (overwritten if it exists); ``.skcath`` is a good suffix.
+        File to write (overwritten if it exists), named ``*.skcath``
+        (:data:`SUFFIX`); another suffix warns with
+        :class:`~skcath.exceptions.FileSuffixWarning`, because no other tool
+        reads the file.
     format : {"joblib", "skops"}, default="joblib"
         Serializer of the estimator. ``"joblib"`` handles every estimator;
         loading it runs arbitrary code from the file, so load only files you
-        trust. ``"skops"`` needs the ``skops`` package and lets :func:`load`
-        check the types in the file against a list of trusted ones (see
-        :func:`get_untrusted_types`); it handles backbones and
-        :class:`~skcath.residuals.NoResidual` but not the residual learners,
-        whose torch state skops cannot store (see ``docs/persistence.rst``).
+        trust. ``"skops"`` needs the ``skops`` package and stores no pickle:
+        :func:`load` builds only the types you trust (see
+        :func:`get_untrusted_types`). It stores the backbones,
+        :class:`~skcath.residuals.NoResidual` and the residual learners
+        :class:`~skcath.residuals.GRUResidual` and
+        :class:`~skcath.residuals.MLPResidual` (their network, criterion and
+        optimizer state as arrays, rebuilt on loading); use it for files you
+        share (see ``docs/persistence.rst``).
     compress : int, default=3
         zlib level (0-9) of the archive members.
 
     Raises
     ------
     ValueError
-        ``format="skops"`` and the estimator holds objects skops cannot store.
+        ``format="skops"`` and the estimator holds objects skops cannot store
+        (a backbone's ``calibrations_``).
+
+    Warns
+    -----
+    FileSuffixWarning
+        ``path`` does not end in ``.skcath``.
 
     See Also
     --------
@@ -149,22 +207,13 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
         raise ValueError(f"format: expected one of {list(FORMATS)}, got {format!r}")
     if not (isinstance(compress, int) and 0 <= compress <= 9):
         raise ValueError(f"compress: expected an int in [0, 9], got {compress!r}")
+    _check_suffix(path)
     if format == "joblib":
         buffer = io.BytesIO()
         joblib.dump(estimator, buffer)
         payload = buffer.getvalue()
     else:
-        import skops.io as sio
-
-        try:
-            payload = sio.dumps(estimator)
-        except (TypeError, RuntimeError) as exc:
-            raise ValueError(
-                f"format='skops' cannot serialize this {type(estimator).__name__}: skops stores "
-                "neither torch tensors (the residual learners' networks and optimizer state) nor "
-                "pandas DataFrames (such as a backbone's calibrations_, the diagnostics of its "
-                "last transform, which may be deleted before saving). Use format='joblib'."
-            ) from exc
+        payload = _skops_payload(estimator)
     header = {
         "file_format": _FILE_FORMAT,
         "format": format,
@@ -176,25 +225,78 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
         zf.writestr(_PAYLOAD[format], payload)
 
 
+def _damaged(path, problem) -> ValueError:
+    """The error of a file that :func:`save` did not write, or that was damaged since."""
+    return ValueError(
+        f"{os.fspath(path)!r} cannot be loaded: {problem}. The file is damaged or was not "
+        "written by skcath.persist.save; save the estimator again, or get an intact copy."
+    )
+
+
+#: Errors of reading a member of a damaged zip archive.
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError)
+
+
+def _read_member(zf, name, path) -> bytes:
+    try:
+        return zf.read(name)
+    except KeyError as exc:
+        raise _damaged(path, f"it has no {name}") from exc
+    except _ZIP_ERRORS as exc:
+        raise _damaged(path, f"its member {name} cannot be read ({exc})") from exc
+
+
+def _check_header(header, path) -> dict:
+    """``header`` if it has every key of a header written by :func:`save`, with its type."""
+    if not isinstance(header, dict):
+        raise _damaged(path, f"its {_HEADER} holds a {type(header).__name__}, not a JSON object")
+    missing = [key for key in ("file_format", "format", "estimator", "versions")
+               if key not in header]
+    if missing:
+        raise _damaged(path, f"its {_HEADER} has no {missing}")
+    if header["file_format"] != _FILE_FORMAT or header["format"] not in FORMATS:
+        raise ValueError(
+            f"{os.fspath(path)!r}: unknown file layout {header['file_format']!r} / format "
+            f"{header['format']!r}; it was written by a newer skcath? (layout "
+            f"{_FILE_FORMAT} with a format in {list(FORMATS)} expected)"
+        )
+    versions = header["versions"]
+    if not isinstance(header["estimator"], str):
+        raise _damaged(path, f"'estimator' of its {_HEADER} is {header['estimator']!r}, "
+                             "not a class name")
+    if not isinstance(versions, dict) or not isinstance(versions.get("skcath"), str):
+        raise _damaged(path, f"'versions' of its {_HEADER} is {versions!r}, not an object "
+                             "with the skcath version as a string")
+    try:
+        _release(versions["skcath"])
+    except ValueError as exc:
+        raise _damaged(path, str(exc)) from exc
+    return header
+
+
 def _open(path):
+    """The open archive at ``path`` and its checked header."""
     try:
         zf = zipfile.ZipFile(path)
     except zipfile.BadZipFile as exc:
-        raise ValueError(f"{os.fspath(path)!r} is not a file written by skcath.persist.save") from exc
-    try:
-        header = json.loads(zf.read(_HEADER))
-    except KeyError as exc:
-        zf.close()
         raise ValueError(
-            f"{os.fspath(path)!r} has no {_HEADER}: it was not written by skcath.persist.save"
+            f"{os.fspath(path)!r} is not a file written by skcath.persist.save: it is not a "
+            "zip archive"
         ) from exc
-    if header.get("file_format") != _FILE_FORMAT or header.get("format") not in FORMATS:
+    try:
+        if _HEADER not in zf.namelist():
+            raise ValueError(
+                f"{os.fspath(path)!r} has no {_HEADER}: it was not written by skcath.persist.save"
+            )
+        raw = _read_member(zf, _HEADER, path)
+        try:
+            header = json.loads(raw)
+        except ValueError as exc:  # not JSON, or not UTF-8
+            raise _damaged(path, f"its {_HEADER} is not valid JSON ({exc})") from exc
+        return zf, _check_header(header, path)
+    except BaseException:
         zf.close()
-        raise ValueError(
-            f"{os.fspath(path)!r}: unknown file layout {header.get('file_format')!r} / format "
-            f"{header.get('format')!r}; it was written by a newer skcath?"
-        )
-    return zf, header
+        raise
 
 
 @validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
@@ -211,6 +313,11 @@ def read_versions(path) -> dict:
     header : dict
         ``format`` (``"joblib"`` or ``"skops"``), ``estimator`` (its class) and
         ``versions`` (package name to version string, None if not installed).
+
+    Raises
+    ------
+    ValueError
+        The file is not written by :func:`save`, or its header is damaged.
     """
     zf, header = _open(path)
     zf.close()
@@ -242,7 +349,34 @@ def get_untrusted_types(path) -> list[str]:
                 f"{os.fspath(path)!r} holds a {header['format']} payload: only the skops format "
                 "has a list of types to trust (a joblib file is trusted entirely or not at all)"
             )
-        return sio.get_untrusted_types(data=zf.read(_PAYLOAD["skops"]))
+        payload = _read_member(zf, _PAYLOAD["skops"], path)
+    try:
+        return sio.get_untrusted_types(data=payload)
+    except _SKOPS_ERRORS as exc:
+        raise _damaged(path, f"its {_PAYLOAD['skops']} cannot be read by skops ({exc})") from exc
+
+
+#: Errors of skops reading bytes that are not a skops file.
+_SKOPS_ERRORS = (zipfile.BadZipFile, KeyError, ValueError)
+
+
+def _deserialize(fmt, payload, path, trusted):
+    """The estimator in ``payload``; its residual learners built again from their state."""
+    if fmt == "joblib":
+        try:
+            return joblib.load(io.BytesIO(payload))
+        except (EOFError, pickle.UnpicklingError) as exc:
+            raise _damaged(path, f"its {_PAYLOAD[fmt]} cannot be unpickled ({exc})") from exc
+    import skops.io as sio
+
+    try:
+        plain = sio.loads(payload, trusted=trusted)
+    except _SKOPS_ERRORS as exc:
+        raise _damaged(path, f"its {_PAYLOAD[fmt]} cannot be read by skops ({exc})") from exc
+    try:
+        return from_plain(plain)
+    except ValueError as exc:
+        raise ValueError(f"{os.fspath(path)!r}: {exc}") from exc
 
 
 @validate_params(
@@ -275,6 +409,10 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
 
     Raises
     ------
+    ValueError
+        The file is not a zip archive written by :func:`save`, or it is
+        damaged: its header is missing, is not JSON or lacks a key, or a
+        member cannot be read. The message names the file and the problem.
     IncompatibleVersionError
         The file was written by a skcath version that :func:`is_compatible_version`
         rejects, and ``allow_version_mismatch`` is False.
@@ -303,16 +441,11 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
             raise ValueError(
                 f"trusted: only for skops-format files; {os.fspath(path)!r} holds a {fmt} payload"
             )
-        payload = zf.read(_PAYLOAD[fmt])
+        payload = _read_member(zf, _PAYLOAD[fmt], path)
     with warnings.catch_warnings():
         # one warning from here instead of one per unpickled skcath estimator
         warnings.simplefilter("ignore", InconsistentVersionWarning)
-        if fmt == "joblib":
-            estimator = joblib.load(io.BytesIO(payload))
-        else:
-            import skops.io as sio
-
-            estimator = sio.loads(payload, trusted=trusted)
+        estimator = _deserialize(fmt, payload, path, trusted)
     if saved != running:
         warnings.warn(
             InconsistentVersionWarning(

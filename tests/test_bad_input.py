@@ -9,18 +9,26 @@ unchanged. The table of these cases is in ``docs/data_format.rst``
 """
 
 import copy
+import json
+import logging
+import os
 import re
+import zipfile
 
+import joblib
 import numpy as np
 import pandas as pd
 import pytest
+from sklearn.pipeline import Pipeline
 
+from skcath import persist
 from skcath._validation import check_recordings
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
-from skcath.exceptions import TruncatedFileWarning
+from skcath.exceptions import FileSuffixWarning, TruncatedFileWarning
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
+from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
 from test_validation import make_recordings
 
@@ -791,3 +799,135 @@ def test_backbone_calibrates_through_scattered_dropouts(bench):
     pd.testing.assert_frame_equal(X, before)
     assert np.isfinite(masked).all()
     assert np.median(np.linalg.norm(masked - full, axis=1)) < 1.0
+
+
+# ---------------------------------------------------------------------------
+# files skcath reads back: saved estimators (skcath.persist), the benchmark cache
+# ---------------------------------------------------------------------------
+def _members(path):
+    with zipfile.ZipFile(path) as zf:
+        return {name: zf.read(name) for name in zf.namelist()}
+
+
+def _write_members(path, members):
+    """Write the archive again, uncompressed, without the members set to None."""
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, content in members.items():
+            if content is not None:
+                zf.writestr(name, content)
+
+
+def _edit_header(edit):
+    def breaker(path):
+        members = _members(path)
+        header = json.loads(members["skcath.json"])
+        edit(header)
+        _write_members(path, {**members, "skcath.json": json.dumps(header).encode()})
+
+    return breaker
+
+
+def _replace_member(name, content):
+    def breaker(path):
+        _write_members(path, {**_members(path), name: content})
+
+    return breaker
+
+
+def _corrupt_payload(path):
+    """Flip one byte of the stored payload: its CRC no longer matches."""
+    _write_members(path, _members(path))
+    data = bytearray(path.read_bytes())
+    data[data.rfind(b"NoResidual")] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+SAVED_FILE_DAMAGED = [
+    pytest.param(_replace_member("skcath.json", b'{"file_format": 1, "format": '),
+                 r"its skcath\.json is not valid JSON", id="saved-file-header-not-json"),
+    pytest.param(_replace_member("skcath.json", b"[1, 2]"),
+                 r"its skcath\.json holds a list, not a JSON object",
+                 id="saved-file-header-not-an-object"),
+    pytest.param(_edit_header(lambda h: h.pop("versions")),
+                 r"its skcath\.json has no \['versions'\]", id="saved-file-header-missing-key"),
+    pytest.param(_edit_header(lambda h: h["versions"].update(skcath=1)),
+                 r"'versions' of its skcath\.json is \{.*\}, not an object with the skcath "
+                 r"version as a string", id="saved-file-version-not-a-string"),
+    pytest.param(_edit_header(lambda h: h["versions"].update(skcath="abc")),
+                 r"cannot parse the skcath version 'abc'", id="saved-file-version-unparsable"),
+    pytest.param(_edit_header(lambda h: h.update(estimator=None)),
+                 r"'estimator' of its skcath\.json is None, not a class name",
+                 id="saved-file-estimator-not-a-string"),
+    pytest.param(_replace_member("estimator.joblib", None), r"it has no estimator\.joblib",
+                 id="saved-file-without-payload"),
+    pytest.param(_corrupt_payload, r"its member estimator\.joblib cannot be read \(Bad CRC-32",
+                 id="saved-file-corrupt-payload"),
+]
+
+
+@pytest.mark.parametrize("breaker, match", SAVED_FILE_DAMAGED)
+def test_damaged_saved_file_is_a_value_error(tmp_path, breaker, match):
+    path = tmp_path / "saved.skcath"
+    persist.save(NoResidual(), path)
+    breaker(path)
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match=r"saved\.skcath' cannot be loaded: " + match) as info:
+        persist.load(path)
+    assert "damaged or was not written by skcath.persist.save" in str(info.value)
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("name", ["model.joblib", "model.pkl", "model"])
+def test_saved_file_with_another_suffix_warns(tmp_path, name):
+    with pytest.warns(FileSuffixWarning, match=re.escape(f"{name}' does not end in '.skcath'")
+                      + r".*joblib\.load, pickle\.load and skops\.io\.load cannot.*"
+                      + re.escape("Name the file 'model.skcath'")):
+        persist.save(NoResidual(), tmp_path / name)
+    assert isinstance(persist.load(tmp_path / name), NoResidual)  # written all the same
+
+
+class _Payload:
+    """An object whose unpickling creates the folder ``marker``: code from a file."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return os.mkdir, (self.marker,)
+
+
+def test_planted_pickle_in_benchmark_cache_never_runs(tmp_path, caplog):
+    home = tmp_path / "cache"
+    fresh = make_benchmark(n_catheters=1, n_runs=1, data_home=home)
+    (path,) = home.glob("benchmark-play-*")
+    marker = tmp_path / "payload-ran"
+    stem = path.with_suffix("")
+    # at the path of the pickled caches of earlier versions, and at today's path
+    joblib.dump(_Payload(marker), stem.with_suffix(".joblib"))
+    with open(stem.with_suffix(".npz"), "wb") as file:
+        np.savez(file, __meta__=np.array([_Payload(marker)], dtype=object))
+    with caplog.at_level(logging.WARNING, logger="skcath"):
+        data = make_benchmark(n_catheters=1, n_runs=1, data_home=home)
+    assert not marker.exists()
+    assert any("ignoring unreadable cache file" in r.getMessage() and stem.name in r.getMessage()
+               for r in caplog.records)
+    pd.testing.assert_frame_equal(data.X, fresh.X)
+    np.testing.assert_array_equal(data.y, fresh.y)
+
+
+def test_residual_pipeline_from_others_loads_without_pickle(bench, tmp_path):
+    pytest.importorskip("skops")
+    X, y = bench
+    pipe = Pipeline([("backbone", PDLBackbone()), ("residual", GRUResidual(
+        max_epochs=1, module__hidden_size=8, window_step=200, random_state=0, n_threads=1))])
+    expected = pipe.fit(X, y).predict(X)
+    del pipe["backbone"].calibrations_, pipe["backbone"].calibration_params_
+    path = tmp_path / "from_others.skcath"
+    persist.save(pipe, path, format="skops")
+    untrusted = persist.get_untrusted_types(path)
+    assert untrusted == ["skcath._torch_state.ResidualLearnerState",
+                         "skcath.backbones._backbone.PDLBackbone",
+                         "skcath.residuals._estimators.GRUResidual"]
+    with pytest.raises(TypeError, match=r"Untrusted types found.*GRUResidual"):
+        persist.load(path)
+    np.testing.assert_array_equal(persist.load(path, trusted=untrusted).predict(X), expected)

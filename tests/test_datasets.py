@@ -8,7 +8,6 @@ need it; everything else uses single runs or one-catheter benchmarks.
 import dataclasses
 import logging
 
-import joblib
 import numpy as np
 import pandas as pd
 import pytest
@@ -29,7 +28,7 @@ from skcath.datasets import (
     shaft_settings,
     simulate_run,
 )
-from skcath.datasets import _benchmark
+from skcath.datasets import _benchmark, _cache
 from skcath.datasets._protocol import (
     constant_speed,
     min_jerk,
@@ -556,7 +555,7 @@ def test_default_benchmark_ranges(default_benchmark):
 
 
 def test_cache_reload_does_not_resimulate(default_benchmark, benchmark_home, monkeypatch):
-    files = list(benchmark_home.glob("benchmark-play-*.joblib"))
+    files = list(benchmark_home.glob("benchmark-play-*.npz"))
     assert len(files) == 1
 
     def _no_simulation(*args, **kwargs):
@@ -617,7 +616,7 @@ def test_small_benchmark_cache_round_trip(small_benchmark, tmp_path, monkeypatch
     # other arguments are cached separately
     make_benchmark(n_catheters=1, n_runs=1, mechanism="bouc_wen", data_home=tmp_path)
     assert len(calls) == 2
-    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+    assert len(list(tmp_path.glob("benchmark-*.npz"))) == 2
 
 
 def test_simulator_version_keys_the_cache(small_benchmark, tmp_path, monkeypatch):
@@ -638,7 +637,7 @@ def test_simulator_version_keys_the_cache(small_benchmark, tmp_path, monkeypatch
     older = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
     assert older.key["version"] == version + "-older"
     assert len(calls) == 2
-    assert len(list(tmp_path.glob("benchmark-play-*.joblib"))) == 2
+    assert len(list(tmp_path.glob("benchmark-play-*.npz"))) == 2
     monkeypatch.setattr(_benchmark, "SIMULATOR_VERSION", version)
     again = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
     assert len(calls) == 2
@@ -649,11 +648,12 @@ def test_simulator_version_keys_the_cache(small_benchmark, tmp_path, monkeypatch
 @pytest.mark.parametrize("content", ["garbage", "foreign"])
 def test_corrupt_cache_is_regenerated(small_benchmark, tmp_path, monkeypatch, caplog, content):
     make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
-    (path,) = tmp_path.glob("benchmark-play-*.joblib")
+    (path,) = tmp_path.glob("benchmark-play-*.npz")
     if content == "garbage":
-        path.write_bytes(b"not a joblib file")
+        path.write_bytes(b"not a cache file")
     else:  # a readable file written for other arguments
-        joblib.dump({"key": {"version": "0"}, "X": None}, path)
+        with open(path, "wb") as file:
+            _cache.write_bunch(file, Bunch(key={"version": "0"}, X=None), {"version": "0"})
     calls = _count_simulations(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="skcath"):
         data = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
@@ -662,9 +662,59 @@ def test_corrupt_cache_is_regenerated(small_benchmark, tmp_path, monkeypatch, ca
     if content == "garbage":
         assert any(path.name in rec.getMessage() for rec in caplog.records)
     # the cache file was rewritten and now loads without simulating
-    _assert_same_data(joblib.load(path), small_benchmark)
+    _assert_same_data(_cache.read_bunch(path), small_benchmark)
     make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
     assert len(calls) == 1
+
+
+def _assert_identical_bunches(a, b):
+    """Same fields in the same order; frames with the same dtypes, categories and index."""
+    assert list(a) == list(b)
+    for name, value in a.items():
+        other = b[name]
+        assert type(other) is type(value), name
+        if isinstance(value, pd.DataFrame):
+            pd.testing.assert_frame_equal(value, other, check_exact=True)
+            pd.testing.assert_index_equal(value.index, other.index, exact=True)
+            pd.testing.assert_index_equal(value.columns, other.columns, exact=True)
+            for column in value:
+                assert other[column].dtype == value[column].dtype, (name, column)
+                if isinstance(value[column].dtype, pd.CategoricalDtype):
+                    pd.testing.assert_index_equal(
+                        other[column].cat.categories, value[column].cat.categories, exact=True
+                    )
+        elif isinstance(value, np.ndarray):
+            assert other.dtype == value.dtype and other.shape == value.shape, name
+            assert_array_equal(other, value)
+        else:  # JSON values: repr tells a float from a numpy float, a list from a tuple
+            assert repr(other) == repr(value), name
+
+
+@pytest.mark.parametrize("shaft_change", [False, True])
+def test_cached_benchmark_is_the_generated_one_without_pickle(
+    small_benchmark, changed_benchmark, tmp_path, monkeypatch, shaft_change
+):
+    fresh = changed_benchmark if shaft_change else small_benchmark
+    make_benchmark(n_catheters=1, n_runs=1, shaft_change=shaft_change, data_home=tmp_path)
+    (path,) = tmp_path.glob("benchmark-play-*.npz")
+    with np.load(path, allow_pickle=False) as npz:  # no member needs pickle
+        assert all(npz[name].dtype != object for name in npz.files)
+    calls = _count_simulations(monkeypatch)
+    cached = make_benchmark(n_catheters=1, n_runs=1, shaft_change=shaft_change, data_home=tmp_path)
+    assert calls == []
+    _assert_identical_bunches(cached, fresh)
+    assert set(cached) == {"X", "y", "y_true", "sensors", "runs", "noise_floor", "mechanism",
+                           "catheters", "key", "DESCR"}
+
+
+def test_cached_benchmark_of_given_catheters_is_found_again(tmp_path, monkeypatch):
+    # the key holds the units' parameters: it must compare equal once read back
+    units = [dataclasses.replace(benchmark_catheter(1), length=55.0)]
+    first = make_benchmark(n_runs=1, catheters=units, data_home=tmp_path)
+    calls = _count_simulations(monkeypatch)
+    again = make_benchmark(n_runs=1, catheters=units, data_home=tmp_path)
+    assert calls == []
+    _assert_identical_bunches(again, first)
 
 
 def test_no_cache_writes_nothing(tmp_path):
@@ -805,7 +855,7 @@ def test_shaft_change_keeps_the_default_benchmark_and_its_cache(small_benchmark,
     changed = make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, data_home=tmp_path)
     again = make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, data_home=tmp_path)
     assert len(calls) == 2  # cached separately, then loaded
-    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+    assert len(list(tmp_path.glob("benchmark-*.npz"))) == 2
     _assert_same_data(changed, again)
     pd.testing.assert_frame_equal(changed.runs, again.runs, check_exact=True)
 
@@ -923,7 +973,7 @@ def test_run_variation_changes_only_the_given_variation(small_benchmark, tmp_pat
     # a different cache file from the default benchmark's
     default = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
     assert "run_variation" not in default.key
-    assert len(list(tmp_path.glob("benchmark-*.joblib"))) == 2
+    assert len(list(tmp_path.glob("benchmark-*.npz"))) == 2
     # giving the default values is the default benchmark
     same = make_benchmark(n_catheters=1, n_runs=1, run_variation={"gain_drift": 0.03}, cache=False)
     _assert_same_data(same, small_benchmark)

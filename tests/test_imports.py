@@ -228,8 +228,10 @@ def test_exceptions_are_the_same_classes_everywhere():
     from skcath import exceptions, persist
 
     assert set(exceptions.__all__) == {
-        "InconsistentVersionWarning", "IncompatibleVersionError", "TruncatedFileWarning"
+        "FileSuffixWarning", "InconsistentVersionWarning", "IncompatibleVersionError",
+        "TruncatedFileWarning",
     }
+    assert issubclass(exceptions.FileSuffixWarning, UserWarning)
     assert persist.InconsistentVersionWarning is exceptions.InconsistentVersionWarning
     assert persist.IncompatibleVersionError is exceptions.IncompatibleVersionError
     assert issubclass(exceptions.InconsistentVersionWarning, UserWarning)

@@ -1,6 +1,7 @@
 """Tests of saving and loading fitted estimators with their versions (skcath.persist)."""
 
 import copy
+import io
 import json
 import pickle
 import warnings
@@ -9,8 +10,10 @@ import zipfile
 import joblib
 import numpy as np
 import pytest
+import torch
 from numpy.testing import assert_array_equal
 from sklearn.base import clone
+from sklearn.frozen import FrozenEstimator
 from sklearn.pipeline import Pipeline
 from sklearn.utils._param_validation import InvalidParameterError
 
@@ -261,3 +264,192 @@ def test_arguments_of_the_wrong_type_are_named(fitted, tmp_path):
             function(None)
     with pytest.raises(InvalidParameterError, match="'saved' parameter of is_compatible_version"):
         is_compatible_version(0.1)
+
+
+# ---------------------------------------------------------------------------
+# the pickle-free format for the residual learners
+# ---------------------------------------------------------------------------
+def _without_diagnostics(pipe):
+    """A copy of a fitted pipeline without the backbone's per-call diagnostics (DataFrames)."""
+    pipe = copy.deepcopy(pipe)
+    del pipe["backbone"].calibrations_, pipe["backbone"].calibration_params_
+    return pipe
+
+
+@pytest.mark.parametrize("residual", list(RESIDUALS))
+def test_skops_round_trip_residual_learners(data, fitted, tmp_path, residual):
+    pytest.importorskip("skops")
+    X, y = data
+    expected = fitted("PDL", residual).predict(X)
+    pipe = _without_diagnostics(fitted("PDL", residual))  # predict sets them again
+    path = tmp_path / "pdl.skcath"
+    persist.save(pipe, path, format="skops")
+    assert persist.read_versions(path)["format"] == "skops"
+    untrusted = persist.get_untrusted_types(path)
+    learner = {"none": "skcath.residuals._no_residual.NoResidual",
+               "MLP": "skcath.residuals._estimators.MLPResidual",
+               "GRU": "skcath.residuals._estimators.GRUResidual"}[residual]
+    extra = [] if residual == "none" else ["skcath._torch_state.ResidualLearnerState"]
+    assert untrusted == sorted(["skcath.backbones._backbone.PDLBackbone", learner, *extra])
+    with pytest.raises(Exception, match="Untrusted types"):
+        persist.load(path)
+    loaded = persist.load(path, trusted=untrusted)
+    assert_array_equal(loaded.predict(X), expected)  # bit for bit
+    assert type(loaded["residual"]) is type(pipe["residual"])
+    own = pipe["residual"].get_params(deep=False)
+    theirs = loaded["residual"].get_params(deep=False)
+    assert {k: v for k, v in theirs.items() if not k.startswith("_")} == {
+        k: v for k, v in own.items() if not k.startswith("_")}
+    if residual != "none":
+        assert len(loaded["residual"].history_) == len(pipe["residual"].history_)
+        # the optimizer state is stored too: training goes on as it would have
+        Xb = pipe["backbone"].transform(X)
+        pipe["residual"].partial_fit(Xb, y)
+        loaded["residual"].partial_fit(Xb, y)
+        assert_array_equal(loaded["residual"].predict(Xb), pipe["residual"].predict(Xb))
+
+
+def _nodes(schema):
+    """Every node of a skops schema (a dict with a ``__loader__``)."""
+    found = []
+    if isinstance(schema, dict):
+        if "__loader__" in schema:
+            found.append(schema)
+        for value in schema.values():
+            found += _nodes(value)
+    elif isinstance(schema, list):
+        for value in schema:
+            found += _nodes(value)
+    return found
+
+
+def test_skops_file_of_a_residual_learner_holds_no_pickle(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    pipe = _without_diagnostics(fitted("PDL", "GRU"))
+    before = {k: v.clone() for k, v in pipe["residual"].module_.state_dict().items()}
+    path = tmp_path / "gru.skcath"
+    persist.save(pipe, path, format="skops")
+    for key, value in pipe["residual"].module_.state_dict().items():  # saving changed nothing
+        assert torch.equal(value, before[key])
+    with zipfile.ZipFile(path) as zf:
+        assert sorted(zf.namelist()) == ["estimator.skops", "skcath.json"]
+        payload = zipfile.ZipFile(io.BytesIO(zf.read("estimator.skops")))
+    names = payload.namelist()
+    assert "schema.json" in names
+    nodes = _nodes(json.loads(payload.read("schema.json")))
+    assert {"ObjectNode", "TypeNode", "NdArrayNode"} <= {node["__loader__"] for node in nodes}
+    # no bytes for skorch's __setstate__ to unpickle, no torch or skorch object
+    assert "BytesNode" not in {node["__loader__"] for node in nodes}
+    packages = {str(node.get("__module__")).split(".")[0] for node in nodes}
+    assert not packages & {"torch", "skorch"}
+    for name in names:
+        if name != "schema.json":
+            assert name.endswith(".npy")
+            np.load(io.BytesIO(payload.read(name)), allow_pickle=False)
+
+
+def test_skops_file_trained_in_float64_keeps_its_precision(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    X, _ = data
+    pipe = _without_diagnostics(fitted("PDL", "MLP"))
+    pipe["residual"].module_.double()
+    path = tmp_path / "mlp64.skcath"
+    persist.save(pipe, path, format="skops")
+    loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert next(loaded["residual"].module_.parameters()).dtype == torch.float64
+    assert_array_equal(loaded.predict(X), pipe.predict(X))
+
+
+def test_skops_keeps_a_pretrained_learner_and_an_unfitted_one(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    X, y = data
+    source = fitted("PDL", "GRU")["residual"]
+    Xb = fitted("PDL", "GRU")["backbone"].transform(X)
+    tuned = GRUResidual(**{**TINY, "lr": 5e-4}, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    path = tmp_path / "tuned.skcath"
+    persist.save(tuned, path, format="skops")
+    loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert_array_equal(loaded.predict(Xb), tuned.predict(Xb))
+    assert isinstance(loaded.pretrained, FrozenEstimator)
+    assert_array_equal(loaded.pretrained.estimator.predict(Xb), source.predict(Xb))
+
+    persist.save(MLPResidual(**TINY), path, format="skops")
+    unfitted = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert not unfitted.initialized_
+    assert unfitted.get_params()["module__hidden_size"] == TINY["module__hidden_size"]
+
+
+def test_skops_state_of_another_class_is_refused(tmp_path):
+    pytest.importorskip("skops")
+    from skcath._torch_state import ResidualLearnerState
+
+    state = ResidualLearnerState.of(GRUResidual())
+    state.learner = PDLBackbone  # a file that claims a backbone is a residual learner
+    path = tmp_path / "forged.skcath"
+    persist.save(state, path, format="skops")
+    untrusted = persist.get_untrusted_types(path)
+    with pytest.raises(ValueError, match=r"forged\.skcath'.*PDLBackbone.*not one of "
+                                         r"\['GRUResidual', 'MLPResidual'\]"):
+        persist.load(path, trusted=untrusted)
+
+
+# ---------------------------------------------------------------------------
+# damaged files and the suffix
+# ---------------------------------------------------------------------------
+def _rewrite(path, **members):
+    """Rewrite the archive at ``path`` with some members replaced (None drops one)."""
+    with zipfile.ZipFile(path) as zf:
+        content = {name: zf.read(name) for name in zf.namelist()}
+    content.update(members)
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, value in content.items():
+            if value is not None:
+                zf.writestr(name, value)
+
+
+def test_damaged_skops_payload_names_the_file(tmp_path):
+    pytest.importorskip("skops")
+    path = tmp_path / "none.skcath"
+    persist.save(NoResidual(), path, format="skops")
+    _rewrite(path, **{"estimator.skops": b"not a skops file"})
+    for function in (persist.load, persist.get_untrusted_types):
+        with pytest.raises(ValueError, match=r"none\.skcath' cannot be loaded: its "
+                                             r"estimator\.skops cannot be read by skops"):
+            function(path)
+
+
+def test_damaged_joblib_payload_names_the_file(tmp_path):
+    path = tmp_path / "none.skcath"
+    persist.save(NoResidual(), path)
+    _rewrite(path, **{"estimator.joblib": b"\x80\x04"})
+    with pytest.raises(ValueError, match=r"none\.skcath' cannot be loaded: its "
+                                         r"estimator\.joblib cannot be unpickled"):
+        persist.load(path)
+
+
+def test_suffix_skcath_is_silent(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        persist.save(NoResidual(), tmp_path / "a.skcath")
+        persist.save(NoResidual(), tmp_path / "b.SKCATH")
+    assert persist.SUFFIX == ".skcath"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks loading without a GPU")
+def test_skops_state_of_a_cuda_learner_loads_on_the_cpu(data, fitted, tmp_path):
+    pytest.importorskip("skops")
+    from skorch.exceptions import DeviceWarning
+
+    from skcath._torch_state import ResidualLearnerState
+
+    X, _ = data
+    learner = fitted("PDL", "GRU")["residual"]
+    Xb = fitted("PDL", "GRU")["backbone"].transform(X)
+    state = ResidualLearnerState.of(learner)
+    state.params["device"] = "cuda"  # as saved from a learner trained on a GPU
+    path = tmp_path / "cuda.skcath"
+    persist.save(state, path, format="skops")
+    with pytest.warns(DeviceWarning, match="no CUDA devices"):
+        loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert loaded.device == "cpu"
+    assert_array_equal(loaded.predict(Xb), learner.predict(Xb))

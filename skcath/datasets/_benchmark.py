@@ -10,10 +10,10 @@ import time
 from numbers import Integral, Real
 from pathlib import Path
 
-import joblib
 import numpy as np
 from sklearn.utils._param_validation import Interval, StrOptions, validate_params
 
+from ._cache import SUFFIX, as_json_value, read_bunch, read_key, write_bunch
 from ._catheter import UNIT_SPREAD, Catheter, sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._sensors import DistortionField
@@ -268,7 +268,10 @@ def make_benchmark(
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
-        Load from / save to the cache folder.
+        Load from / save to the cache folder. The cache file holds no
+        pickle and is read with ``numpy.load(..., allow_pickle=False)``; it
+        is used only when the key stored in it (``bunch.key``) matches
+        (``docs/simulator.rst``, *The cache*).
     verbose : bool, default=False
         Log generation progress at INFO level.
 
@@ -333,15 +336,14 @@ def make_benchmark(
         specs, mechanism=mechanism, field=_benchmark_field(int(random_state)),
         run_variation=run_variation,
     )
-    bunch.catheters = {c.name: c.to_dict() for c in catheters}
+    # as the cache gives them back: plain floats and lists
+    bunch.catheters = as_json_value({c.name: c.to_dict() for c in catheters})
     bunch.key = key
     bunch.DESCR = _describe(bunch, len(catheters), int(n_runs))
     if verbose:
         logger.info("generated %d runs in %.1f s", len(specs), time.perf_counter() - start)
     if path is not None:
-        tmp = path.with_suffix(".tmp")
-        joblib.dump(bunch, tmp)
-        tmp.replace(path)
+        _write_cached(path, bunch)
     return bunch
 
 
@@ -382,25 +384,46 @@ def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
         key["run_variation"] = {k: float(v) for k, v in sorted(run_variation.items())}
     if catheters is not None:
         key["catheters"] = [cat.to_dict() for cat in catheters]
-    return key
+    return as_json_value(key)
 
 
 def _cache_path(key, data_home):
-    """File of the benchmark with ``key`` in the cache folder."""
+    """File of the benchmark with ``key`` in the cache folder.
+
+    The file name holds a digest of the key; its suffix is that of the
+    pickle-free cache format (:mod:`skcath.datasets._cache`), so that the
+    pickled ``.joblib`` files of earlier skcath versions are never opened.
+    """
     digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:12]
-    return get_data_home(data_home) / f"benchmark-{key['mechanism']}-{digest}.joblib"
+    return get_data_home(data_home) / f"benchmark-{key['mechanism']}-{digest}{SUFFIX}"
 
 
 def _load_cached(path, key):
-    """The cached benchmark at ``path`` if it was generated with ``key``, else None."""
+    """The cached benchmark at ``path`` if it was generated with ``key``, else None.
+
+    The file is read without unpickling anything, so whatever sits at the
+    predictable path runs no code.
+    """
     if not path.exists():
         return None
     try:
-        bunch = joblib.load(path)
+        if read_key(path) != key:
+            return None
+        return read_bunch(path)
     except Exception as exc:  # a truncated or foreign file: regenerate
         logger.warning("ignoring unreadable cache file %s (%s)", path, exc)
         return None
-    return bunch if bunch.get("key") == key else None
+
+
+def _write_cached(path, bunch):
+    """Write ``bunch`` to ``path`` through a temporary file, so a reader never sees half a file."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as file:
+            write_bunch(file, bunch, bunch.key)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _describe(bunch, n_catheters, n_runs):
