@@ -4,7 +4,7 @@ A leaf module: it imports nothing from the package, so that every other module
 can import it.
 """
 
-__all__ = ["IncompatibleVersionError", "InconsistentVersionWarning"]
+__all__ = ["GroupsNotUsedWarning", "IncompatibleVersionError", "InconsistentVersionWarning"]
 
 
 class InconsistentVersionWarning(UserWarning):
@@ -44,4 +44,17 @@ class IncompatibleVersionError(ValueError):
     Raised by :func:`skcath.persist.load` before anything is unpickled; pass
     ``allow_version_mismatch=True`` to load the file anyway. See
     :func:`skcath.persist.is_compatible_version` for the rule.
+    """
+
+
+class GroupsNotUsedWarning(UserWarning):
+    """``groups`` was given to a splitter of :mod:`skcath.model_selection`.
+
+    Warned by ``split`` and ``get_n_splits`` of
+    :class:`~skcath.model_selection.LeaveOneSettingOut`,
+    :class:`~skcath.model_selection.SettingGroupKFold` and
+    :class:`~skcath.model_selection.LeaveOneCatheterOut`: they group the rows
+    by the ``catheter`` and ``setting`` columns of ``X`` and do not use
+    ``groups``. Leave ``groups`` out, or use a scikit-learn group splitter
+    (``GroupKFold``, ``LeaveOneGroupOut``) to fold by other groups.
     """

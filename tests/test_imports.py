@@ -227,7 +227,10 @@ def test_every_module_imports():
 def test_exceptions_are_the_same_classes_everywhere():
     from skcath import exceptions, persist
 
-    assert set(exceptions.__all__) == {"InconsistentVersionWarning", "IncompatibleVersionError"}
+    assert set(exceptions.__all__) == {
+        "GroupsNotUsedWarning", "InconsistentVersionWarning", "IncompatibleVersionError"
+    }
+    assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)
     assert persist.InconsistentVersionWarning is exceptions.InconsistentVersionWarning
     assert persist.IncompatibleVersionError is exceptions.IncompatibleVersionError
     assert issubclass(exceptions.InconsistentVersionWarning, UserWarning)
