@@ -530,7 +530,7 @@ def test_backbone_calibrates_through_scattered_dropouts(bench):
 # targets, references and cross-validation
 # ---------------------------------------------------------------------------
 def test_target_frame_columns_are_matched_by_name(bench):
-    """``y-frame-columns-reordered``: a DataFrame y in another column order scores the same."""
+    """A DataFrame y with its columns in another order: matched by name, same score."""
     X, y = bench
     y_frame = pd.DataFrame(y, columns=TARGET)[["p_z", "p_y", "p_x"]]
     before = y_frame.copy()
@@ -542,7 +542,7 @@ def test_target_frame_columns_are_matched_by_name(bench):
 
 
 def test_target_frame_with_other_names_is_rejected(tiny):
-    """``y-frame-unknown-names``: names other than p_x, p_y, p_z are listed and refused."""
+    """Column names other than p_x, p_y, p_z are listed and refused."""
     X, y = tiny
     y_frame = pd.DataFrame(y, columns=["x", "y", "z"])
     with pytest.raises(ValueError, match=r"y is a DataFrame with the columns \['x', 'y', 'z'\]; "
@@ -574,7 +574,7 @@ def _failure_messages(caught):
 
 
 def test_kfold_that_cuts_runs_names_the_fix(bench):
-    """``kfold-cuts-runs``: every failed fold of the default cv says that it cut a run."""
+    """Every failed fold of the default cv (KFold) says that it cut a run, and the fix."""
     X, y = bench
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -587,7 +587,7 @@ def test_kfold_that_cuts_runs_names_the_fix(bench):
 
 
 def test_shuffled_kfold_that_cuts_runs_is_an_error(bench):
-    """``shuffled-kfold-cuts-runs``: runs with missing motion rows fail every fit."""
+    """A shuffled KFold leaves runs with missing motion rows: every fit fails."""
     X, y = bench
     with pytest.raises(ValueError, match=r"All the 5 fits failed(.|\n)*'motion' rows of run "
                        r"'\S+' miss samples(.|\n)*it cut a run"):
@@ -596,7 +596,7 @@ def test_shuffled_kfold_that_cuts_runs_is_an_error(bench):
 
 
 def test_groups_given_to_a_package_splitter_warn(bench):
-    """``groups-to-skcath-splitter``: the splitters fold by X's columns and say so."""
+    """The package splitters fold by the columns of X and say that groups is not used."""
     X, _ = bench
     with pytest.warns(GroupsNotUsedWarning, match=r"does not use: it groups the rows by the "
                       r"'catheter' and 'setting' columns of X"):
