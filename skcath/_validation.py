@@ -9,9 +9,9 @@ format and per-run arrays is the job of :mod:`skcath._runs`, which builds on
 these checks.
 
 All checks are vectorised (``pd.factorize`` for the ids, ``np.diff`` over rows
-sorted by run for the time axis): the cost is linear in the number of rows, up
-to one stable sort of the run codes, with no Python loop over rows on valid
-input.
+sorted by run for the time axis, one sort by run and value for the per-run
+medians): the cost is linear in the number of rows, up to these sorts, with no
+Python loop over rows or runs on valid input.
 
 The format itself is described in ``docs/data_format.rst``; the column names
 live in :mod:`skcath._format`.
@@ -32,9 +32,12 @@ from ._format import (
 )
 
 __all__ = [
+    "CUT_RUN_HINT",
     "FINITE_COLUMNS",
     "MAX_ABS_VALUE",
+    "MAX_GAP_FRACTION",
     "NUMERIC_COLUMNS",
+    "REFERENCE_TOLERANCE_MM",
     "check_quat_order",
     "check_recordings",
     "check_target",
@@ -54,6 +57,33 @@ NUMERIC_COLUMNS = (*FINITE_COLUMNS, *REFERENCE_COLUMNS)
 #: angle (degrees), torque, time (s) or position (mm); they would also overflow
 #: the float32 arithmetic of the residual networks.
 MAX_ABS_VALUE = 1e12
+
+#: Largest median distance (mm) between ``y`` and the reference tip ``ref_*``
+#: over the sweep rows of a run where both are finite. Both hold the same
+#: tracker measurement there (equal in the simulator and in what the readers
+#: return); the tracker's position jitter is 0.1-0.2 mm, so even two separately
+#: filtered copies of one measurement stay well below this. A unit mix-up (m
+#: against mm) or a target shifted by some rows is tens of mm away.
+REFERENCE_TOLERANCE_MM = 1.0
+
+#: Motion rows of a run are consecutive samples at a constant rate. A run
+#: with at least ``_MIN_MOTION_STEPS`` motion steps is refused when more than
+#: this fraction of them are longer than ``_GAP_FACTOR`` times its median step:
+#: rows are missing, as in a fold of a shuffled ``KFold`` or a random row
+#: selection (a fold keeping 80 % of the rows leaves 20 % such steps).
+MAX_GAP_FRACTION = 0.05
+_GAP_FACTOR = 1.5
+_MIN_MOTION_STEPS = 20
+
+#: How to keep the runs whole, added to the messages of the checks that a
+#: subset of a run fails (no sweep rows, missing motion rows).
+CUT_RUN_HINT = (
+    "If X is a subset of the recordings (a cross-validation fold, a row selection), "
+    "it cut a run: keep all rows of a run together, for example cv=GroupKFold(n_splits) "
+    "with groups=X['run'], or a splitter of skcath.model_selection such as "
+    "LeaveOneSettingOut(). KFold, the default cv of cross_val_score and "
+    "cross_validate, cuts runs. See docs/evaluation.rst."
+)
 
 _DOCS = "docs/data_format.rst"
 # How many offending values or runs an error message lists before "... and N more".
@@ -418,7 +448,8 @@ def _check_phase_order(
             raise ValueError(
                 f"Run(s) {_list_items(runs[no_sweep])} have no {SWEEP!r} rows; "
                 "every run must start with its calibration sweep (rows with "
-                f"{PHASE!r} == {SWEEP!r} and the reference tip {list(REFERENCE_COLUMNS)})."
+                f"{PHASE!r} == {SWEEP!r} and the reference tip {list(REFERENCE_COLUMNS)}). "
+                + CUT_RUN_HINT
             )
     sorted_sweep = sweep[order]
     sorted_codes = codes[order]
@@ -464,6 +495,101 @@ def _check_time_order(
     )
 
 
+def _group_medians(values: np.ndarray, codes: np.ndarray, n_groups: int) -> np.ndarray:
+    """Median of ``values`` within each group; NaN for a group without values.
+
+    The values sorted by group and value (a sort by value, then a stable
+    radix sort of the small integer codes), then the middle element(s) of
+    every group's slice: no loop over the groups.
+    """
+    counts = np.bincount(codes, minlength=n_groups)
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    by_value = np.argsort(values)
+    small = codes[by_value].astype(np.min_scalar_type(max(n_groups - 1, 0)), copy=False)
+    ordered = values[by_value[np.argsort(small, kind="stable")]]
+    medians = np.full(n_groups, np.nan)
+    has = counts > 0
+    low = starts[has] + (counts[has] - 1) // 2
+    high = starts[has] + counts[has] // 2
+    medians[has] = 0.5 * (ordered[low] + ordered[high])
+    return medians
+
+
+def _check_motion_sampling(
+    t: np.ndarray,
+    motion: np.ndarray,
+    codes: np.ndarray,
+    runs: np.ndarray,
+    order: np.ndarray,
+) -> None:
+    """Raise if a run's motion rows miss samples (a cut run), see :data:`MAX_GAP_FRACTION`."""
+    rows = order[motion[order]]  # motion rows, those of every run together in row order
+    same_run = codes[rows][1:] == codes[rows][:-1]
+    step_run = codes[rows][1:][same_run]
+    steps = np.diff(t[rows])[same_run]
+    n_steps = np.bincount(step_run, minlength=len(runs))
+    median = _group_medians(steps, step_run, len(runs))
+    n_gaps = np.bincount(
+        step_run, weights=steps > _GAP_FACTOR * median[step_run], minlength=len(runs)
+    )
+    bad = np.flatnonzero(
+        (n_steps >= _MIN_MOTION_STEPS) & (n_gaps > MAX_GAP_FRACTION * n_steps)
+    )
+    if not bad.size:
+        return
+    k = int(bad[0])
+    raise ValueError(
+        f"The {MOTION!r} rows of run {_plain(runs[k])!r} miss samples: {int(n_gaps[k])} of "
+        f"their {int(n_steps[k])} time steps ({100.0 * n_gaps[k] / n_steps[k]:.0f} %, at "
+        f"most {100.0 * MAX_GAP_FRACTION:g} % allowed) are longer than {_GAP_FACTOR:g} "
+        f"times the run's median step of {median[k]:.3g} s, while a run is recorded at a "
+        f"constant rate. Runs affected: {_list_items(runs[bad])}. " + CUT_RUN_HINT
+        + " If the motor log itself has gaps, cut the run at each gap."
+    )
+
+
+def _check_target_matches_reference(
+    y: np.ndarray,
+    ref: np.ndarray,
+    sweep: np.ndarray,
+    codes: np.ndarray,
+    runs: np.ndarray,
+) -> None:
+    """Raise if ``y`` and ``ref_*`` disagree on the sweep rows of a run.
+
+    The median distance over the sweep rows where both are finite must not
+    exceed :data:`REFERENCE_TOLERANCE_MM`.
+    """
+    squared = np.zeros(len(y))
+    for j in range(3):  # column by column: no copies of the (n_rows, 3) arrays
+        squared += (y[:, j] - ref[:, j]) ** 2
+    both = sweep & np.isfinite(squared)  # NaN in either is not compared
+    if not both.any():
+        return
+    median = _group_medians(np.sqrt(squared[both]), codes[both], len(runs))
+    bad = np.flatnonzero(median > REFERENCE_TOLERANCE_MM)  # NaN (no row) compares False
+    if not bad.size:
+        return
+    k = int(bad[0])
+    rows = both & (codes == k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.median(np.linalg.norm(y[rows], axis=1)) / np.median(
+            np.linalg.norm(ref[rows], axis=1)
+        )
+    raise ValueError(
+        f"y and the reference tip {list(REFERENCE_COLUMNS)} disagree on the {SWEEP!r} rows "
+        f"of run {_plain(runs[k])!r}: their median distance is {median[k]:.3g} mm over "
+        f"{int(rows.sum())} rows where both are finite, above the "
+        f"{REFERENCE_TOLERANCE_MM:g} mm allowed (REFERENCE_TOLERANCE_MM; the tracker "
+        "jitter is 0.1-0.2 mm). On sweep rows both hold the same tracker measurement. "
+        f"Likely causes: different units (y is {ratio:.3g} times as far from the base "
+        "frame's origin as ref_*; 0.001 or 1000 means metres against mm, both must be "
+        "in mm), y shifted against the rows of X (it is matched by row position), or "
+        f"columns in another order than {list(TARGET_NAMES)}. Runs affected: "
+        f"{_list_items(runs[bad])}."
+    )
+
+
 # ---------------------------------------------------------------------------
 # target
 # ---------------------------------------------------------------------------
@@ -474,7 +600,9 @@ def check_target(y, n_rows: int) -> np.ndarray:
     ----------
     y : array-like or pandas.DataFrame of shape (n_rows, 3)
         Tip position in the base frame (mm), columns ``p_x, p_y, p_z``. Rows
-        are matched to the recordings by position, not by index label. NaN
+        are matched to the recordings by position, not by index label. The
+        columns of a DataFrame are matched by name, in any order; unnamed
+        columns (labels ``0, 1, 2``) and arrays are taken by position. NaN
         (tracker dropout) is allowed; +-inf is not.
     n_rows : int
         Number of rows of the recordings.
@@ -487,8 +615,9 @@ def check_target(y, n_rows: int) -> np.ndarray:
     Raises
     ------
     ValueError
-        If ``y`` is not of shape ``(n_rows, 3)``, is not numeric, contains
-        +-inf, or has a value larger than :data:`MAX_ABS_VALUE` in magnitude.
+        If ``y`` is not of shape ``(n_rows, 3)``, is a DataFrame with column
+        names other than ``p_x, p_y, p_z``, is not numeric, contains +-inf,
+        or has a value larger than :data:`MAX_ABS_VALUE` in magnitude.
     """
     if isinstance(y, pd.Series):
         raise ValueError(
@@ -496,11 +625,7 @@ def check_target(y, n_rows: int) -> np.ndarray:
             "in mm; got a pandas Series (1-D)."
         )
     if isinstance(y, pd.DataFrame):
-        if y.shape[1] != 3:
-            raise ValueError(
-                f"y must have 3 columns (tip position {list(TARGET_NAMES)}, mm); got "
-                f"a DataFrame with columns {[_plain(c) for c in y.columns]}."
-            )
+        y = _target_frame_in_order(y)
         values = np.column_stack(
             [_target_column_as_float(y.iloc[:, j], j) for j in range(3)]
         )
@@ -538,6 +663,52 @@ def check_target(y, n_rows: int) -> np.ndarray:
         "tip positions in mm",
     )
     return values
+
+
+def _target_frame_in_order(y: pd.DataFrame, name: str = "y") -> pd.DataFrame:
+    """The columns of a target frame in the order ``p_x, p_y, p_z``.
+
+    Named columns are matched by name, whatever their order; unnamed columns
+    (the labels ``0, 1, 2`` of a frame built from an array) are taken by
+    position.
+
+    Parameters
+    ----------
+    y : pandas.DataFrame of shape (n_rows, 3)
+        Tip positions (mm); never modified.
+    name : str, default="y"
+        Name of the argument, starting the messages.
+
+    Returns
+    -------
+    y : pandas.DataFrame
+        ``y`` itself when its columns are unnamed or already in order,
+        otherwise a new frame with the columns reordered.
+
+    Raises
+    ------
+    ValueError
+        If ``y`` does not have 3 columns, or has column names other than the
+        target names :data:`skcath.TARGET_NAMES`.
+    """
+    found = [_plain(c) for c in y.columns]
+    expected = list(TARGET_NAMES)
+    if len(found) != 3:
+        raise ValueError(
+            f"{name} must have 3 columns (tip position {expected}, mm); got "
+            f"a DataFrame with columns {found}."
+        )
+    if found == [0, 1, 2] or found == expected:
+        return y
+    if set(found) != set(expected):
+        raise ValueError(
+            f"{name} is a DataFrame with the columns {found}; its columns must be the "
+            f"target names {expected} (in any order: they are matched by name) or "
+            f"unnamed (labels 0, 1, 2: taken by position as {expected}). Rename them, e.g. "
+            f"{name}.rename(columns={{...}}), or pass {name}.to_numpy() if they are in "
+            f"the order {expected}."
+        )
+    return y[expected]
 
 
 def _target_column_as_float(series: pd.Series, j: int) -> np.ndarray:
@@ -601,7 +772,10 @@ def check_recordings(
         order.
     y : array-like or pandas.DataFrame of shape (n_rows, 3), optional
         Tip position in the base frame (mm), matched to ``X`` by row position.
-        NaN rows (tracker dropouts) are allowed and kept.
+        NaN rows (tracker dropouts) are allowed and kept. The columns of a
+        DataFrame are matched by name (``p_x, p_y, p_z`` in any order), or
+        taken by position when unnamed (labels ``0, 1, 2``). On sweep rows it
+        must agree with ``ref_*`` (see Raises).
     columns : sequence of str, default ``REQUIRED_COLUMNS``
         Columns that must be present. The ``run`` column is always required.
         The checks of the known columns (ids, numeric channels, ``phase``) run
@@ -633,7 +807,13 @@ def check_recordings(
     ValueError
         On any violation of the format; the message names the column and,
         where it applies, the run id and row label. This includes finite
-        values larger than :data:`MAX_ABS_VALUE` (``1e12``) in magnitude.
+        values larger than :data:`MAX_ABS_VALUE` (``1e12``) in magnitude;
+        a run whose ``y`` and ``ref_*`` are more than
+        :data:`REFERENCE_TOLERANCE_MM` (1 mm) apart in the median over its
+        sweep rows (units or a row shift); and a run with at least 20 motion
+        rows of which more than :data:`MAX_GAP_FRACTION` (5 %) of the time
+        steps exceed 1.5 times the median step (rows missing, as in a fold
+        that cuts runs).
 
     Notes
     -----
@@ -673,12 +853,17 @@ def check_recordings(
         # rows of every run together, in row order: the order the run is checked in
         order = np.argsort(codes, kind="stable")
     if PHASE in required:
-        sweep, _ = _phase_masks(X)
+        sweep, motion = _phase_masks(X)
         _check_phase_order(X, sweep, codes, runs, order, require_sweep=require_sweep)
     if TIME in required:
         _check_time_order(X, converted[TIME], codes, runs, order)
+        if PHASE in required:
+            _check_motion_sampling(converted[TIME], motion, codes, runs, order)
 
     y_checked = None if y is None else check_target(y, len(X))
+    if y_checked is not None and PHASE in required and set(REFERENCE_COLUMNS) <= set(required):
+        ref = np.column_stack([converted[c] for c in REFERENCE_COLUMNS])
+        _check_target_matches_reference(y_checked, ref, sweep, codes, runs)
 
     X_checked = X.copy(deep=copy)
     for column, values in converted.items():

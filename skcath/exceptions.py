@@ -6,6 +6,7 @@ can import it.
 
 __all__ = [
     "FileSuffixWarning",
+    "GroupsNotUsedWarning",
     "IncompatibleVersionError",
     "InconsistentVersionWarning",
     "TruncatedFileWarning",
@@ -71,4 +72,17 @@ class FileSuffixWarning(UserWarning):
     suffix such as ``.joblib``, ``.pkl`` or ``.skops`` invites
     ``joblib.load``, ``pickle.load`` or ``skops.io.load``, which cannot open
     it. The file is written all the same.
+    """
+
+
+class GroupsNotUsedWarning(UserWarning):
+    """``groups`` was given to a splitter of :mod:`skcath.model_selection`.
+
+    Warned by ``split`` and ``get_n_splits`` of
+    :class:`~skcath.model_selection.LeaveOneSettingOut`,
+    :class:`~skcath.model_selection.SettingGroupKFold` and
+    :class:`~skcath.model_selection.LeaveOneCatheterOut`: they group the rows
+    by the ``catheter`` and ``setting`` columns of ``X`` and do not use
+    ``groups``. Leave ``groups`` out, or use a scikit-learn group splitter
+    (``GroupKFold``, ``LeaveOneGroupOut``) to fold by other groups.
     """

@@ -21,11 +21,13 @@ from sklearn.utils import Bunch, check_random_state
 from . import _format as fmt
 from ._runs import run_codes
 from ._validation import (
+    CUT_RUN_HINT,
     _check_columns_present,
     _check_finite,
     _check_frame,
     _column_as_float,
     _phase_masks,
+    _target_frame_in_order,
     check_target,
 )
 
@@ -47,6 +49,8 @@ __all__ = [
 def _tip_errors(y_true, y_pred, n_rows):
     """Euclidean tip error (mm) per row; NaN where the reference is missing."""
     y_true = check_target(y_true, n_rows)
+    if isinstance(y_pred, pd.DataFrame):
+        y_pred = _target_frame_in_order(y_pred, "y_pred")
     y_pred = np.asarray(y_pred, dtype=float)
     if y_pred.shape != (n_rows, 3):
         raise ValueError(f"y_pred must have shape ({n_rows}, 3) to match X; got {y_pred.shape}.")
@@ -84,9 +88,10 @@ def _scored_errors(y_true, y_pred, X, phase):
 # the entry ``name`` (indented for a function docstring).
 _SHARED_DOCS = {
     "tip_params": """y_true : array-like of shape (n_samples, 3)
-        Measured tip positions (mm), NaN rows allowed (not scored).
+        Measured tip positions (mm), NaN rows allowed (not scored). The
+        columns of a DataFrame are matched by name (``p_x, p_y, p_z``).
     y_pred : array-like of shape (n_samples, 3)
-        Estimated tip positions (mm).""",
+        Estimated tip positions (mm), columns as ``y_true``.""",
     "X_run_phase": """X : pandas.DataFrame
         The recordings (long format); only the ``run`` and ``phase`` columns
         are used.""",
@@ -115,9 +120,11 @@ def per_run_rmse(y_true, y_pred, X, *, phase=fmt.MOTION):
     Parameters
     ----------
     y_true : array-like of shape (n_samples, 3)
-        Measured tip positions (mm), NaN rows allowed.
+        Measured tip positions (mm), NaN rows allowed. The columns of a
+        DataFrame are matched by name (``p_x, p_y, p_z`` in any order);
+        unnamed columns and arrays by position.
     y_pred : array-like of shape (n_samples, 3)
-        Estimated tip positions (mm).
+        Estimated tip positions (mm), columns as ``y_true``.
     X : pandas.DataFrame
         The recordings (long format, ``docs/data_format.rst``); only the
         ``run`` and ``phase`` columns are used.
@@ -150,17 +157,39 @@ def mean_per_run_rmse(y_true, y_pred, X, *, phase=fmt.MOTION):
     """
     per_run = per_run_rmse(y_true, y_pred, X, phase=phase)
     if per_run.isna().all():
-        raise ValueError(f"no run has a scored row (phase={phase!r} with a finite y_true).")
+        raise ValueError(
+            f"no run has a scored row (phase={phase!r} with a finite y_true). " + CUT_RUN_HINT
+        )
     return float(per_run.mean())
 
 
+def _check_whole_runs(X):
+    """Raise if a run of the scored recordings has no sweep rows (a cut run)."""
+    _check_frame(X, caller="run_rmse_scorer")
+    _check_columns_present(X, (fmt.RUN, fmt.PHASE))
+    codes, runs = run_codes(X)
+    sweep, _ = _phase_masks(X)
+    no_sweep = np.flatnonzero(np.bincount(codes[sweep], minlength=len(runs)) == 0)
+    if no_sweep.size:
+        raise ValueError(
+            f"The scored recordings hold {no_sweep.size} run(s) without {fmt.SWEEP!r} rows, "
+            f"first {runs[no_sweep[0]]!r}; every run starts with its calibration sweep, "
+            "which a held-out run needs at test time. " + CUT_RUN_HINT
+        )
+
+
 class _RunRMSEScorer:
-    """Picklable scorer: negated mean per-run RMSE of ``estimator.predict(X)``."""
+    """Picklable scorer: negated mean per-run RMSE of ``estimator.predict(X)``.
+
+    The runs of ``X`` must be whole (each with its sweep rows): a run without
+    them is a fold that cut the run, and is refused before ``predict``.
+    """
 
     def __init__(self, phase):
         self.phase = phase
 
     def __call__(self, estimator, X, y):
+        _check_whole_runs(X)
         return -mean_per_run_rmse(y, estimator.predict(X), X, phase=self.phase)
 
     def __repr__(self):
@@ -171,7 +200,9 @@ def make_run_rmse_scorer(*, phase=fmt.MOTION):
     """Scorer ``scorer(estimator, X, y)`` for cross_validate and GridSearchCV.
 
     Returns the NEGATED mean per-run RMSE (greater is better, as scikit-learn
-    expects), computed on ``estimator.predict(X)``.
+    expects), computed on ``estimator.predict(X)``. ``X`` must hold whole runs:
+    a run without its sweep rows, which a cross-validation split that cuts
+    runs (such as ``KFold``) leaves, is a ValueError naming the fix.
 
     Parameters
     ----------

@@ -50,7 +50,7 @@ from sklearn.utils._param_validation import Interval, validate_params
 
 from ._format import MOTOR_COLUMNS, PHASE, SWEEP
 from ._runs import run_codes, run_positions
-from ._validation import check_recordings, check_target, to_array
+from ._validation import CUT_RUN_HINT, check_recordings, check_target, to_array
 
 __all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
 
@@ -155,6 +155,11 @@ def _of_run(run) -> str:
     return "" if run is None else f" of run {run!r}"
 
 
+def _cut_hint(run) -> str:
+    """How to keep runs whole, for the errors a cut sweep gives; empty without a run id."""
+    return "" if run is None else " " + CUT_RUN_HINT
+
+
 def _in_run(run) -> str:
     """`` in run 'X'`` for messages, or an empty string without a run id."""
     return "" if run is None else f" in run {run!r}"
@@ -255,6 +260,7 @@ def _check_motor_angles(q, run, n_rays, min_samples) -> np.ndarray:
         raise ValueError(
             f"The sweep{_of_run(run)} has {n} samples; expected at least "
             f"{min_samples} (n_rays={n_rays} rays out and back from neutral)."
+            + _cut_hint(run)
         )
     return arr
 
@@ -450,7 +456,7 @@ def _find_excursions(d, rho, neutral, spacing, min_amplitude_deg, run):
             f"its direction psi deviates by up to {np.rad2deg(spread[i]):.1f} deg "
             f"from its mean; expected out-and-back moves along rays from neutral, "
             f"each within {np.rad2deg(max_spread):.1f} deg of one direction at "
-            f"rho above half its peak."
+            f"rho above half its peak." + _cut_hint(run)
         )
     return ux, uy, (starts, stops, is_ray, csum, ssum)
 
@@ -494,7 +500,7 @@ def _check_layout(directions, n_candidates, n_rays, spacing, ray_spacing_deg, ru
             f"{what} in the sweep{_of_run(run)}: found {n_found} distinct "
             f"ray(s) at directions {_fmt_deg(directions)} deg (from "
             f"{n_candidates} excursion(s) away from neutral); expected "
-            f"n_rays={n_rays} rays {layout}."
+            f"n_rays={n_rays} rays {layout}." + _cut_hint(run)
         )
     gaps = np.diff(directions, append=directions[0] + _TWO_PI)
     if ray_spacing_deg is None:
@@ -510,7 +516,7 @@ def _check_layout(directions, n_candidates, n_rays, spacing, ray_spacing_deg, ru
             f"{np.rad2deg(gaps[i]):.1f} deg between the rays at {a:.1f} and "
             f"{b:.1f} deg (directions found: {_fmt_deg(directions)} deg); expected "
             f"{n_rays} rays {layout}, with no gap above "
-            f"{np.rad2deg(max_gap):.1f} deg."
+            f"{np.rad2deg(max_gap):.1f} deg." + _cut_hint(run)
         )
 
 

@@ -13,21 +13,24 @@ import json
 import logging
 import os
 import re
+import warnings
 import zipfile
 
 import joblib
 import numpy as np
 import pandas as pd
 import pytest
+from sklearn.model_selection import KFold, cross_val_score, cross_validate
 from sklearn.pipeline import Pipeline
 
 from skcath import persist
 from skcath._validation import check_recordings
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
-from skcath.exceptions import FileSuffixWarning, TruncatedFileWarning
+from skcath.exceptions import FileSuffixWarning, GroupsNotUsedWarning, TruncatedFileWarning
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
+from skcath.model_selection import LeaveOneSettingOut
 from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
 from test_validation import make_recordings
@@ -931,3 +934,77 @@ def test_residual_pipeline_from_others_loads_without_pickle(bench, tmp_path):
     with pytest.raises(TypeError, match=r"Untrusted types found.*GRUResidual"):
         persist.load(path)
     np.testing.assert_array_equal(persist.load(path, trusted=untrusted).predict(X), expected)
+# targets, references and cross-validation
+# ---------------------------------------------------------------------------
+def test_target_frame_columns_are_matched_by_name(bench):
+    """A DataFrame y with its columns in another order: matched by name, same score."""
+    X, y = bench
+    y_frame = pd.DataFrame(y, columns=TARGET)[["p_z", "p_y", "p_x"]]
+    before = y_frame.copy()
+    _, y_checked = check_recordings(X, y_frame)
+    np.testing.assert_array_equal(y_checked, y)
+    model = PDLBackbone().fit(X)
+    assert model.score(X, y_frame) == pytest.approx(model.score(X, y), rel=1e-12)
+    pd.testing.assert_frame_equal(y_frame, before)
+
+
+def test_target_frame_with_other_names_is_rejected(tiny):
+    """Column names other than p_x, p_y, p_z are listed and refused."""
+    X, y = tiny
+    y_frame = pd.DataFrame(y, columns=["x", "y", "z"])
+    with pytest.raises(ValueError, match=r"y is a DataFrame with the columns \['x', 'y', 'z'\]; "
+                       r"its columns must be the target names \['p_x', 'p_y', 'p_z'\]"):
+        check_recordings(X, y_frame)
+
+
+@pytest.mark.parametrize(
+    "breaker, match",
+    [
+        pytest.param(lambda y: y / 1000.0, r"y is 0\.001 times as far", id="y-in-metres-ref-in-mm"),
+        pytest.param(lambda y: np.roll(y, 1500, axis=0), r"y shifted against the rows of X",
+                     id="y-shifted-by-rows"),
+    ],
+)
+def test_target_far_from_reference_is_rejected(bench, breaker, match):
+    """y and ref_* hold the same measurement on sweep rows: units or a row shift are caught."""
+    X, y = bench
+    y_bad = breaker(y.copy())
+    before = y_bad.copy()
+    with pytest.raises(ValueError, match=r"disagree on the 'sweep' rows of run '\S+': their median "
+                       r"distance is [\d.]+ mm .*above the 1 mm allowed.*" + match):
+        check_recordings(X, y_bad)
+    np.testing.assert_array_equal(y_bad, before)
+
+
+def _failure_messages(caught):
+    return [str(w.message) for w in caught if "fail" in str(w.message)]
+
+
+def test_kfold_that_cuts_runs_names_the_fix(bench):
+    """Every failed fold of the default cv (KFold) says that it cut a run, and the fix."""
+    X, y = bench
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scores = cross_val_score(Pipeline([("backbone", PDLBackbone())]), X, y)
+    assert np.isnan(scores).all()
+    messages = _failure_messages(caught)
+    assert len(messages) == len(scores)
+    for message in messages:
+        assert "it cut a run" in message and "groups=X['run']" in message, message
+
+
+def test_shuffled_kfold_that_cuts_runs_is_an_error(bench):
+    """A shuffled KFold leaves runs with missing motion rows: every fit fails."""
+    X, y = bench
+    with pytest.raises(ValueError, match=r"All the 5 fits failed(.|\n)*'motion' rows of run "
+                       r"'\S+' miss samples(.|\n)*it cut a run"):
+        cross_validate(Pipeline([("backbone", PDLBackbone())]), X, y,
+                       cv=KFold(5, shuffle=True, random_state=0))
+
+
+def test_groups_given_to_a_package_splitter_warn(bench):
+    """The package splitters fold by the columns of X and say that groups is not used."""
+    X, _ = bench
+    with pytest.warns(GroupsNotUsedWarning, match=r"does not use: it groups the rows by the "
+                      r"'catheter' and 'setting' columns of X"):
+        list(LeaveOneSettingOut().split(X, groups=X["run"]))

@@ -123,7 +123,7 @@ def test_input_is_never_modified(one_run):
 
 def test_y_keeps_its_type_and_every_run_is_reduced(bench):
     X, y = bench
-    frame = pd.DataFrame(y, columns=["x", "y", "z"])
+    frame = pd.DataFrame(y, columns=["p_x", "p_y", "p_z"])
     Xr, yr = reduce_sweep(X, frame, n_rays=4)
     assert isinstance(yr, pd.DataFrame)
     pd.testing.assert_frame_equal(yr, frame.loc[Xr.index])

@@ -62,7 +62,11 @@ def recordings(draw):
         X = X.sort_values("t", kind="stable")
     X.index = pd.RangeIndex(1000, 1000 + len(X))
     y = np.asarray(draw(st.lists(_finite, min_size=3 * len(X), max_size=3 * len(X))))
-    return X, y.reshape(-1, 3)
+    y = y.reshape(-1, 3)
+    # on sweep rows the target and the reference are the same measurement
+    sweep = (X["phase"] == "sweep").to_numpy()
+    y[sweep] = X.loc[sweep, ["ref_x", "ref_y", "ref_z"]].to_numpy()
+    return X, y
 
 
 MUTATIONS = (

@@ -228,10 +228,11 @@ def test_exceptions_are_the_same_classes_everywhere():
     from skcath import exceptions, persist
 
     assert set(exceptions.__all__) == {
-        "FileSuffixWarning", "InconsistentVersionWarning", "IncompatibleVersionError",
-        "TruncatedFileWarning",
+        "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
+        "IncompatibleVersionError", "TruncatedFileWarning",
     }
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
+    assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)
     assert persist.InconsistentVersionWarning is exceptions.InconsistentVersionWarning
     assert persist.IncompatibleVersionError is exceptions.IncompatibleVersionError
     assert issubclass(exceptions.InconsistentVersionWarning, UserWarning)

@@ -205,7 +205,9 @@ def test_several_runs_in_one_file(tmp_path, poses):
 
 def test_reference_from_file_is_kept(tmp_path, poses):
     frame = _standard_frame(poses)
-    ref = np.where((frame["phase"] == "sweep").to_numpy()[:, None], [1.5, 3.0, 4.5], np.nan)
+    # the same measurement as y on sweep rows, filtered otherwise (within the jitter)
+    sweep = (frame["phase"] == "sweep").to_numpy()[:, None]
+    ref = np.where(sweep, poses["p_b"] + [0.15, -0.1, 0.05], np.nan)
     for j, name in enumerate(("ref_x", "ref_y", "ref_z")):
         frame[name] = ref[:, j]
     path = _write(frame, tmp_path / "rec.csv")

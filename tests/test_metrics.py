@@ -148,6 +148,23 @@ def test_categorical_ids_and_dataframe_targets(two_runs):
     assert_allclose(rmse.to_numpy(), [RMSE_B, RMSE_A], rtol=1e-12)
 
 
+def test_target_frames_are_matched_by_name(two_runs):
+    X, y_true, y_pred = two_runs
+    names = ["p_z", "p_x", "p_y"]
+    yt = pd.DataFrame(y_true[:, [2, 0, 1]], columns=names)
+    yp = pd.DataFrame(y_pred[:, [2, 0, 1]], columns=names)
+    assert_allclose(per_run_rmse(yt, yp, X), [RMSE_B, RMSE_A], rtol=1e-12)
+    with pytest.raises(ValueError, match=r"y_pred is a DataFrame with the columns \['x', 'y', 'z'\]"):
+        per_run_rmse(y_true, pd.DataFrame(y_pred, columns=["x", "y", "z"]), X)
+
+
+def test_no_scored_row_names_the_cut_run_fix(two_runs):
+    X, y_true, y_pred = two_runs
+    sweep = (X["phase"] == "sweep").to_numpy()
+    with pytest.raises(ValueError, match=r"no run has a scored row .*cut a run.*GroupKFold"):
+        mean_per_run_rmse(y_true[sweep], y_pred[sweep], X[sweep])
+
+
 def test_inputs_are_not_modified(two_runs):
     X, y_true, y_pred = two_runs
     y_true[5] = np.nan
@@ -238,6 +255,22 @@ def test_scorer_phases(two_runs):
     expected = -mean_per_run_rmse(y_true, y_pred, X, phase=None)
     assert make_run_rmse_scorer(phase=None)(est, X, y_true) == pytest.approx(expected, rel=1e-12)
     assert expected < -50.0  # the sweep rows count with phase=None
+
+
+def test_scorer_refuses_a_run_without_its_sweep(two_runs):
+    X, y_true, y_pred = two_runs
+    rows = np.array([1, 2, 3, 4, 5, 6])  # run "b" without its sweep row
+    with pytest.raises(
+        ValueError,
+        match=r"hold 1 run\(s\) without 'sweep' rows, first 'b'.*cut a run.*"
+        r"groups=X\['run'\].*KFold, the default cv",
+    ):
+        run_rmse_scorer(_Fixed(y_pred[rows]), X.iloc[rows], y_true[rows])
+    # a plain metric on motion rows stays possible
+    motion = (X["phase"] == "motion").to_numpy()
+    assert mean_per_run_rmse(y_true[motion], y_pred[motion], X[motion]) == pytest.approx(
+        (RMSE_A + RMSE_B) / 2, rel=1e-12
+    )
 
 
 @pytest.mark.parametrize("phase", ["motion", "sweep", None])

@@ -6,6 +6,7 @@ on small hand-made recordings whose rows are interleaved across runs.
 """
 
 import pickle
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -18,6 +19,7 @@ from sklearn.model_selection import GridSearchCV, cross_val_score, cross_validat
 from sklearn.neighbors import KNeighborsRegressor
 from sklearn.pipeline import Pipeline
 
+from skcath.exceptions import GroupsNotUsedWarning
 from skcath.metrics import mean_per_run_rmse, run_rmse_scorer
 from skcath.model_selection import (
     LeaveOneCatheterOut,
@@ -369,11 +371,24 @@ def test_groups_and_y_are_ignored(data, Splitter):
     cv = Splitter() if Splitter is not SettingGroupKFold else Splitter(2)
     plain = list(cv.split(X))
     garbage = np.arange(len(X)) % 2
-    with_groups = list(cv.split(X, y, groups=garbage))
-    assert len(plain) == len(with_groups) == cv.get_n_splits(X, y, garbage)
+    with pytest.warns(GroupsNotUsedWarning, match=r"\.split got groups, which it does not use"):
+        with_groups = list(cv.split(X, y, groups=garbage))
+    with pytest.warns(GroupsNotUsedWarning, match=r"\.get_n_splits got groups"):
+        n_splits = cv.get_n_splits(X, y, garbage)
+    assert len(plain) == len(with_groups) == n_splits
     for (a, b), (c, d) in zip(plain, with_groups, strict=True):
         assert_array_equal(a, c)
         assert_array_equal(b, d)
+
+
+@pytest.mark.parametrize("Splitter", SPLITTERS)
+def test_no_warning_without_groups(data, Splitter):
+    X, y = data
+    cv = Splitter() if Splitter is not SettingGroupKFold else Splitter(2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        list(cv.split(X, y))
+        cv.get_n_splits(X, y, None)
 
 
 @pytest.mark.parametrize("Splitter", SPLITTERS)
@@ -484,12 +499,12 @@ def test_cross_validate(data, cv):
     for k, (train, test) in enumerate(cv.split(X)):
         assert_array_equal(out["indices"]["train"][k], train)
         assert_array_equal(out["indices"]["test"][k], test)
-    groups = X["catheter"].to_numpy()  # passed and ignored
-    np.testing.assert_allclose(
-        cross_val_score(DummyRegressor(), X, y, groups=groups, cv=cv, scoring=run_rmse_scorer),
-        out["test_score"],
-        rtol=1e-12,
-    )
+    groups = X["catheter"].to_numpy()  # passed and ignored, with a warning
+    with pytest.warns(GroupsNotUsedWarning):
+        with_groups = cross_val_score(
+            DummyRegressor(), X, y, groups=groups, cv=cv, scoring=run_rmse_scorer
+        )
+    np.testing.assert_allclose(with_groups, out["test_score"], rtol=1e-12)
 
 
 def test_grid_search(data):
@@ -502,7 +517,8 @@ def test_grid_search(data):
     )
     cv = LeaveOneSettingOut(exclude_settings=["S00"])
     grid = GridSearchCV(pipe, {"knn__n_neighbors": [1, 5]}, cv=cv, scoring=run_rmse_scorer)
-    grid.fit(X, y, groups=X["setting"])
+    with pytest.warns(GroupsNotUsedWarning):
+        grid.fit(X, y, groups=X["setting"])
     n = cv.get_n_splits(X)
     assert [k for k in grid.cv_results_ if k.startswith("split") and k.endswith("_test_score")] == [
         f"split{i}_test_score" for i in range(n)

@@ -88,10 +88,18 @@ def test_a_higher_degree_fits_the_sweep_better(recordings):
     assert errors[1] < errors[0]
 
 
+def _with_target(X, y):
+    """``X`` with the reference tip equal to ``y`` on sweep rows (the same measurement)."""
+    sweep = (X["phase"] == "sweep").to_numpy()[:, None]
+    ref = np.where(sweep, y, np.nan)
+    return X.assign(**{name: ref[:, j] for j, name in enumerate(REFERENCE_COLUMNS)})
+
+
 def test_fit_calibration_recovers_a_polynomial_and_skips_nan_targets(recordings):
     X, _ = recordings
     q = X[list(MOTOR_COLUMNS)].to_numpy()
     y = _quadratic(q)
+    X = _with_target(X, y)
     est = PolynomialBackbone(degree=2, calibration="fit").fit(X, y)
     assert est.polynomial_ is not None
     assert_allclose(est.predict(X), y, atol=1e-6)

@@ -7,7 +7,13 @@ import pytest
 from skcath._format import REQUIRED_COLUMNS
 from sklearn.utils._param_validation import InvalidParameterError
 
-from skcath._validation import check_recordings, check_target
+from skcath._validation import (
+    MAX_GAP_FRACTION,
+    REFERENCE_TOLERANCE_MM,
+    _group_medians,
+    check_recordings,
+    check_target,
+)
 
 NUMERIC = ["t", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z"]
 
@@ -46,6 +52,9 @@ def make_recordings(n_runs=3, n_sweep=3, n_motion=4, seed=0, first_label=100):
     X = pd.concat(frames, ignore_index=True)
     X.index = pd.RangeIndex(first_label, first_label + len(X))
     y = rng.normal(size=(len(X), 3))
+    # on sweep rows the target and the reference are the same measurement
+    sweep = (X["phase"] == "sweep").to_numpy()
+    y[sweep] = X.loc[sweep, ["ref_x", "ref_y", "ref_z"]].to_numpy()
     return X, y
 
 
@@ -368,3 +377,157 @@ def test_y_infinite_is_rejected():
 def test_check_target_accepts_lists():
     out = check_target([[1, 2, 3], [4, 5, np.nan]], 2)
     assert out.dtype == np.float64 and np.isnan(out[1, 2])
+
+
+# ---------------------------------------------------------------------------
+# target columns by name
+# ---------------------------------------------------------------------------
+TARGET = ["p_x", "p_y", "p_z"]
+
+
+@pytest.mark.parametrize("order", [[2, 1, 0], [1, 2, 0], [0, 2, 1]])
+def test_y_frame_columns_are_matched_by_name(order):
+    X, y = make_recordings()
+    y_frame = pd.DataFrame(y[:, order], columns=[TARGET[j] for j in order])
+    before = y_frame.copy()
+    _, y_checked = check_recordings(X, y_frame)
+    np.testing.assert_array_equal(y_checked, y)
+    pd.testing.assert_frame_equal(y_frame, before)
+    np.testing.assert_array_equal(check_target(y_frame, len(X)), y)
+
+
+def test_y_frame_without_names_is_taken_by_position():
+    X, y = make_recordings()
+    _, y_checked = check_recordings(X, pd.DataFrame(y))
+    np.testing.assert_array_equal(y_checked, y)
+
+
+@pytest.mark.parametrize(
+    "names",
+    [["x", "y", "z"], ["p_x", "p_y", "p_y"], ["p_x", "p_y", "q"], [1, 2, 3], ["0", "1", "2"]],
+)
+def test_y_frame_with_other_names_is_rejected(names):
+    X, y = make_recordings()
+    y_frame = pd.DataFrame(y, columns=names)
+    with pytest.raises(ValueError, match=r"y is a DataFrame with the columns .*target names "
+                       r"\['p_x', 'p_y', 'p_z'\] \(in any order"):
+        check_recordings(X, y_frame)
+
+
+def test_y_frame_names_are_listed_when_the_count_is_wrong():
+    X, y = make_recordings()
+    y_frame = pd.DataFrame(np.column_stack([y, y[:, 0]]), columns=[*TARGET, "p_w"])
+    with pytest.raises(ValueError, match=r"3 columns .*'p_w'"):
+        check_recordings(X, y_frame)
+
+
+# ---------------------------------------------------------------------------
+# target against the reference on sweep rows
+# ---------------------------------------------------------------------------
+def test_group_medians_match_pandas():
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=200)
+    codes = rng.integers(0, 6, 200)
+    codes[codes == 4] = 5  # group 4 is empty
+    medians = _group_medians(values, codes, 7)
+    expected = pd.Series(values).groupby(codes).median().reindex(range(7)).to_numpy()
+    np.testing.assert_allclose(medians, expected, equal_nan=True)
+
+
+def _scaled_recordings(n_sweep=8, n_motion=30):
+    """Recordings whose tip positions are tens of mm away from the base, y = ref on sweep rows."""
+    X, y = make_recordings(n_sweep=n_sweep, n_motion=n_motion)
+    X[["ref_x", "ref_y", "ref_z"]] = 10.0 * X[["ref_x", "ref_y", "ref_z"]] + 60.0
+    return X, 10.0 * y + 60.0
+
+
+def test_y_in_metres_against_reference_in_mm_is_rejected():
+    X, y = _scaled_recordings()
+    with pytest.raises(
+        ValueError,
+        match=r"disagree on the 'sweep' rows of run 'r0': their median distance is \d+\.?\d* mm "
+        r"over 8 rows .*y is 0\.001 times .*Runs affected: 'r0', 'r1', 'r2'",
+    ):
+        check_recordings(X, y / 1000.0)
+
+
+def test_y_shifted_by_rows_is_rejected():
+    X, y = _scaled_recordings()
+    with pytest.raises(ValueError, match=r"disagree .*run 'r0'.*shifted against the rows of X"):
+        check_recordings(X, np.roll(y, 5, axis=0))
+
+
+@pytest.mark.parametrize("offset, accepted", [(0.8, True), (1.2, False)])
+def test_reference_tolerance_is_on_the_median_distance(offset, accepted):
+    assert REFERENCE_TOLERANCE_MM == 1.0
+    X, y = _scaled_recordings()
+    sweep = (X["phase"] == "sweep").to_numpy()
+    y[sweep, 0] += offset
+    y[np.flatnonzero(sweep)[0]] += 500.0  # one glitch does not move the median
+    if accepted:
+        check_recordings(X, y)
+    else:
+        with pytest.raises(ValueError, match=r"median distance is 1\.2 mm"):
+            check_recordings(X, y)
+
+
+def test_reference_check_skips_rows_without_both_values():
+    X, y = _scaled_recordings()
+    sweep = (X["phase"] == "sweep").to_numpy()
+    r1 = (X["run"] == "r1").to_numpy()
+    X.loc[sweep & r1, "ref_x"] = np.nan  # no reference in the sweep of r1
+    y[sweep & r1] = 0.0
+    others = np.flatnonzero(sweep & ~r1)
+    y[others[::2], 1] = np.nan  # dropouts of y on half the sweep rows of r0 and r2
+    y[others[1]] += 50.0  # one of the 4 rows left in r0 is off: the median is not
+    check_recordings(X, y)
+    y[others[3]] += 50.0  # two of 4: the median is
+    with pytest.raises(ValueError, match=r"run 'r0'.* over 4 rows"):
+        check_recordings(X, y)
+    # without the reference columns among those checked, nothing is compared
+    columns = [c for c in REQUIRED_COLUMNS if not c.startswith("ref_")]
+    check_recordings(X, np.zeros_like(y), columns=columns)
+
+
+# ---------------------------------------------------------------------------
+# motion rows of a run at a constant rate
+# ---------------------------------------------------------------------------
+def _drop_motion_rows(X, y, every):
+    """Drop every ``every``-th motion row of each run."""
+    step = X.groupby("run").cumcount().to_numpy()
+    drop = (X["phase"] == "motion").to_numpy() & (step % every == 0)
+    return X[~drop], y[~drop]
+
+
+def test_motion_rows_missing_samples_are_rejected():
+    X, y = make_recordings(n_sweep=3, n_motion=60)
+    X_cut, y_cut = _drop_motion_rows(X, y, every=5)  # 20 % of the rows, like a KFold(5) fold
+    with pytest.raises(
+        ValueError,
+        match=r"The 'motion' rows of run 'r0' miss samples: \d+ of their \d+ time steps "
+        r"\(\d+ %, at most 5 % allowed\).*cut a run.*GroupKFold",
+    ):
+        check_recordings(X_cut, y_cut)
+
+
+def test_motion_rows_with_few_gaps_or_thinned_evenly_are_accepted():
+    assert MAX_GAP_FRACTION == 0.05
+    X, y = make_recordings(n_sweep=3, n_motion=60)
+    check_recordings(*_drop_motion_rows(X, y, every=30))  # 2 of 59 steps
+    motion = (X["phase"] == "motion").to_numpy()
+    step = X.groupby("run").cumcount().to_numpy()
+    keep = ~motion | (step % 2 == 0)  # every other motion row: a constant rate
+    check_recordings(X[keep], y[keep])
+    sweep_thinned = motion | (step % 2 == 0)  # thinning the sweep is allowed
+    check_recordings(X[sweep_thinned], y[sweep_thinned])
+    # runs with fewer than 20 motion steps are not judged
+    X_short, y_short = make_recordings(n_sweep=3, n_motion=12)
+    check_recordings(*_drop_motion_rows(X_short, y_short, every=2))
+
+
+def test_run_without_sweep_names_the_cut_run_fix():
+    X, y = make_recordings()
+    rows = (X["run"] == "r1").to_numpy() & (X["phase"] == "sweep").to_numpy()
+    with pytest.raises(ValueError, match=r"Run\(s\) 'r1' have no 'sweep' rows.*cut a run.*"
+                       r"groups=X\['run'\].*LeaveOneSettingOut"):
+        check_recordings(X[~rows], y[~rows])

@@ -16,6 +16,7 @@ training without ever being tested.
 
 import inspect
 import numbers
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -24,6 +25,7 @@ from sklearn.utils import check_random_state
 
 from .._format import CATHETER, RUN, SETTING
 from .._validation import _factorize_ids
+from ..exceptions import GroupsNotUsedWarning
 
 __all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold", "exclusion_set"]
 
@@ -219,8 +221,19 @@ class _RecordingSplitter(BaseCrossValidator):
         signature = inspect.signature(cls.__init__)
         return [p for p in signature.parameters if p != "self"]
 
-    def _layout(self, X, method):
-        return _Layout(X, f"{type(self).__name__}.{method}")
+    def _layout(self, X, method, groups):
+        caller = f"{type(self).__name__}.{method}"
+        if groups is not None:
+            warnings.warn(
+                GroupsNotUsedWarning(
+                    f"{caller} got groups, which it does not use: it groups the rows by "
+                    f"the {CATHETER!r} and {SETTING!r} columns of X. Leave groups out, or "
+                    "use a scikit-learn group splitter (GroupKFold, LeaveOneGroupOut) to "
+                    "fold by other groups."
+                ),
+                stacklevel=3,
+            )
+        return _Layout(X, caller)
 
     def split(self, X, y=None, groups=None):
         """Generate the row positions of the training and test set of every fold.
@@ -234,9 +247,10 @@ class _RecordingSplitter(BaseCrossValidator):
         y : object, default=None
             Ignored, present for API compatibility.
         groups : object, default=None
-            Ignored: the folds come from the ``catheter`` and ``setting``
+            Not used: the folds come from the ``catheter`` and ``setting``
             columns of ``X``. Accepted so that code written for scikit-learn's
-            group splitters runs unchanged.
+            group splitters runs, with a
+            :class:`~skcath.exceptions.GroupsNotUsedWarning` when given.
 
         Yields
         ------
@@ -245,7 +259,7 @@ class _RecordingSplitter(BaseCrossValidator):
         test : ndarray of int
             Increasing row positions of the test set.
         """
-        layout = self._layout(X, "split")
+        layout = self._layout(X, "split", groups)
         for c, test_pairs in self._plan(layout):
             is_test = np.zeros(len(layout.pair_catheter), dtype=bool)
             is_test[test_pairs] = True
@@ -267,13 +281,14 @@ class _RecordingSplitter(BaseCrossValidator):
         y : object, default=None
             Ignored.
         groups : object, default=None
-            Ignored.
+            Not used; warns :class:`~skcath.exceptions.GroupsNotUsedWarning`
+            when given.
 
         Returns
         -------
         n_splits : int
         """
-        layout = self._layout(X, "get_n_splits")
+        layout = self._layout(X, "get_n_splits", groups)
         return len(self._plan(layout, counting=True))
 
 

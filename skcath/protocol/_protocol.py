@@ -26,7 +26,7 @@ from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
 from .. import _format as fmt
-from .._validation import check_recordings
+from .._validation import check_recordings, check_target
 from ..backbones import BACKBONE_COLUMNS
 from ..model_selection import (
     LeaveOneCatheterOut,
@@ -271,7 +271,7 @@ def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=
     schedule = get_schedule(schedule)
     variants = schedule.variants if variants is None else tuple(variants)
     params = {**schedule.model_params, **schedule.pretrain_params}
-    y = np.asarray(y, dtype=float)
+    y = check_target(y, len(X))
 
     def tasks():
         for fold in folds:
@@ -333,7 +333,7 @@ def finetune_models(
     schedule = get_schedule(schedule)
     variants = schedule.variants if variants is None else tuple(variants)
     params = {**schedule.model_params, **schedule.finetune_params}
-    y = np.asarray(y, dtype=float)
+    y = check_target(y, len(X))
 
     def tasks():
         for number, fold in enumerate(folds):
