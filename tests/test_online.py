@@ -24,7 +24,7 @@ from sklearn.utils._param_validation import InvalidParameterError
 from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
 from skcath.datasets import make_benchmark
 from skcath.online import OnlineEstimator, calibrate_sweep
-from skcath.online._fast import PCCStep, PDLStep
+from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
 from _helpers import tiny_residual
@@ -185,8 +185,7 @@ def test_start_matches_backbone_calibration(data, pipelines):
     sweep, _, _ = _split(X_run)
     est = OnlineEstimator(pipe).start(sweep)
     backbone = pipe["backbone"]
-    backbone.predict(X_run)
-    expected = backbone.calibration_params_[est.run_]
+    expected = backbone.calibrate(X_run).params[est.run_]
     assert est.run_ == X_run["run"].iloc[0]
     assert_allclose(est.backbone_params_.coef, expected.coef)
     assert est.rotation_.shape == (3, 3)
