@@ -36,8 +36,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .._kernel import evaluate_rows, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
@@ -384,13 +386,6 @@ def _check_q(q, name="q"):
     return arr
 
 
-def _check_params(params):
-    """Raise ``TypeError`` unless ``params`` is a :class:`PCCParams`."""
-    if not isinstance(params, PCCParams):
-        raise TypeError(f"params must be a PCCParams; got {type(params).__qualname__}.")
-    return params
-
-
 @tip_kernel("PCCParams")
 def pcc_kernel(theta, q1, q2):
     """Tip of the PCC backbone for one motor sample: the one scalar form of eq. pcc.
@@ -477,6 +472,7 @@ def _tip_and_jacobian_R(v, C, u0, L, R, wv=None):
     return tip, J
 
 
+@validate_params({"q": ["array-like"], "params": [PCCParams]}, prefer_skip_nested_validation=True)
 def pcc_tip(q, params):
     r"""Tip position of the PCC backbone (paper eqs. pcc-input and pcc).
 
@@ -504,11 +500,11 @@ def pcc_tip(q, params):
     tip : ndarray of shape (n, 3)
         Tip positions in the base frame ``B`` (mm).
     """
-    params = _check_params(params)
     q = _check_q(q)
     return evaluate_rows(_PCC_ROWS, params.pack(), q)
 
 
+@validate_params({"q": ["array-like"], "params": [PCCParams]}, prefer_skip_nested_validation=True)
 def pcc_jacobian(q, params):
     r"""Tip position and its analytic Jacobian with respect to the free parameters.
 
@@ -545,7 +541,6 @@ def pcc_jacobian(q, params):
         :data:`PCC_FREE_PARAMETERS` = ``(C11, C12, C21, C22, u0_1, u0_2, L,
         w1, w2)``; units mm per rad (``C``, ``u0``, ``w``) and mm/mm (``L``).
     """
-    params = _check_params(params)
     q = _check_q(q)
     v = (q - params.q0) / params.S_m
     w, _ = _roll_free_split(params.R_g)
@@ -640,6 +635,18 @@ def _check_p(p, n):
     return arr
 
 
+@validate_params(
+    {
+        "q": ["array-like"],
+        "p": ["array-like"],
+        "q0": ["array-like", None],
+        "S_m": [Interval(Real, 0, None, closed="neither"), None],
+        "init": [PCCParams, None],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "return_info": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_info=False):
     r"""Fit the PCC backbone to paired motor angles and tip positions.
 
@@ -690,10 +697,6 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
     """
     q = _check_q(q)
     p = _check_p(p, q.shape[0])
-    if init is not None and not isinstance(init, PCCParams):
-        raise TypeError(f"init must be a PCCParams or None; got {type(init).__qualname__}.")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be a positive integer; got {max_iter!r}.")
     keep = ~np.isnan(p).any(axis=1)
     n_used = int(keep.sum())
     if n_used < _MIN_ROWS:

@@ -54,8 +54,10 @@ angles in radians.
 
 import math
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
+from sklearn.utils._param_validation import Interval, validate_params
 
 from .._kernel import bisect_right, evaluate_rows, kernel, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
@@ -559,6 +561,7 @@ def _check_q(q):
     return q
 
 
+@validate_params({"q": ["array-like"], "params": [PDLParams]}, prefer_skip_nested_validation=True)
 def pdl_tip(q, params):
     """Nominal tip position of the per-direction linear backbone.
 
@@ -704,6 +707,20 @@ def _check_calibration_inputs(q, p, labels, directions, neutral):
     return q, p, labels, directions, neutral
 
 
+@validate_params(
+    {
+        "q": ["array-like"],
+        "p": ["array-like"],
+        "labels": ["array-like"],
+        "directions": ["array-like"],
+        "neutral": ["array-like"],
+        "q_neutral": ["array-like", None],
+        "rho0": [Real, None],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "return_info": ["boolean"],
+    },
+    prefer_skip_nested_validation=True,
+)
 def calibrate_pdl(
     q,
     p,
