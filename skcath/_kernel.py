@@ -138,7 +138,9 @@ def _register_declared():
         def typer(*args, _implementation=implementation, **kwargs):
             return _implementation
 
-        overload(func, jit_options=JIT_OPTIONS, strict=False)(typer)
+        # a primitive's loops are inlined where they are called, as if written there
+        inline = "never" if implementation is func else "always"
+        overload(func, jit_options=JIT_OPTIONS, strict=False, inline=inline)(typer)
     _state["registered"] = len(_declared)
 
 

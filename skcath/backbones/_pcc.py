@@ -400,10 +400,11 @@ def pcc_kernel(theta, q1, q2):
     u2 = v1 * theta[PCC_C + 2] + v2 * theta[PCC_C + 3] + theta[PCC_U0 + 1]
     x = u1 * u1 + u2 * u2
     if x < _SERIES_MAX:  # Taylor series in x = alpha^2, as _arc_ratios
-        f, s = theta[PCC_F_SERIES], theta[PCC_S_SERIES]
+        fs, ss = PCC_F_SERIES, PCC_S_SERIES
+        f, s = theta[fs], theta[ss]
         for k in range(1, _N_TERMS):
-            f = f * x + theta[PCC_F_SERIES + k]
-            s = s * x + theta[PCC_S_SERIES + k]
+            f = f * x + theta[fs + k]
+            s = s * x + theta[ss + k]
     else:
         a = math.sqrt(x)
         f = 2.0 * math.sin(0.5 * a) ** 2 / x

@@ -10,10 +10,20 @@ The small arrays that Python indexes item by item (``meta``, the backbone's
 
 from __future__ import annotations
 
-from ._kernels import BackboneStep, step
-from ._layout import MatrixStore, PackedStep
+from ._kernels import BackboneStep, _gru_vectors_sliced, _head_vectors_sliced, step
+from ._layout import GRU_RECORD, HEAD_RECORD, M_HEADER, M_N_GRU, M_N_HEAD, MatrixStore, PackedStep
 
 __all__ = ["BackboneStep", "NumpyStep"]
+
+
+class _Meta(list):
+    """``meta`` as Python reads it: a list of its ints, and ``views``, the vectors of every layer.
+
+    ``views`` maps each GRU and head record to the views of ``buf`` that
+    :func:`~skcath.online._kernels.gru_vectors` and
+    :func:`~skcath.online._kernels.head_vectors` give, sliced once here by the
+    functions that compiled code runs, rather than at every step.
+    """
 
 
 class NumpyStep(PackedStep):
@@ -25,4 +35,13 @@ class NumpyStep(PackedStep):
 
     def _bind(self):
         # lists: Python reads their items faster than an array's
-        return (step, self.meta.tolist(), self.f, self.theta.tolist(), self.w, self.w32, self.buf)
+        meta = _Meta(self.meta.tolist())
+        meta.views = {}
+        first_head = M_HEADER + GRU_RECORD * meta[M_N_GRU]
+        for k in range(meta[M_N_GRU]):
+            rec = M_HEADER + GRU_RECORD * k
+            meta.views[rec] = _gru_vectors_sliced(meta, self.buf, rec)
+        for k in range(meta[M_N_HEAD]):
+            rec = first_head + HEAD_RECORD * k
+            meta.views[rec] = _head_vectors_sliced(meta, self.buf, rec)
+        return (step, meta, self.f, self.theta.tolist(), self.w, self.w32, self.buf)

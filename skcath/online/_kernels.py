@@ -171,14 +171,31 @@ def _matvec_compiled(meta, r, w, w32, x, y):
                True)
 
 
-def _sigmoid_compiled(x, t, bits):
-    n = x.shape[0]
+def _gru_vectors_sliced(meta, buf, rec):
+    H = meta[M_HIDDEN]
+    n_in = meta[rec + GRU_N_IN]
+    at = meta[rec + GRU_VECTOR]
+    v = buf[at : at + n_in + 1 + H]
+    g = buf[meta[M_GATES] : meta[M_GATES] + 3 * H]
+    return (v, v[:n_in], v[: n_in + 1], v[n_in + 1 :], g, g[: 2 * H], g[:H], g[H : 2 * H],
+            g[2 * H :], buf[meta[M_CAND] : meta[M_CAND] + H], buf[meta[M_TMP] : meta[M_TMP] + H])
+
+
+def _head_vectors_sliced(meta, buf, rec):
+    src, dst = meta[rec + HEAD_SRC], meta[rec + HEAD_DST]
+    return (buf[src : src + meta[rec + HEAD_MATRIX + MAT_COLS]],
+            buf[dst : dst + meta[rec + HEAD_MATRIX + MAT_ROWS]])
+
+
+def _gates_compiled(rz, r_pre, z_pre, t, bits):
+    n = rz.shape[0]
     for i in range(n):
-        t[i] = -x[i]
+        t[i] = -rz[i]
     _exp(t[:n], bits[:n])
     for i in range(n):
         t[i] = 1.0 / (1.0 + t[i])
-    return t[:n]
+    H = r_pre.shape[0]
+    return t[:H], t[H:n]
 
 
 def _tanh_of_sum_compiled(a, r, b, t, bits, at):
@@ -221,14 +238,38 @@ def matvec(meta, r, w, w32, x, y):
     np.dot(w[meta[r + MAT_A_AT]], x, y)
 
 
-@compiled_as(_sigmoid_compiled)
-def sigmoid(x, t, bits):
-    """``sigmoid(x)``: in place in Python, into the float64 scratch ``t`` when compiled.
+@compiled_as(_gru_vectors_sliced)
+def gru_vectors(meta, buf, rec):
+    """The vectors of the GRU layer of record ``meta[rec:]``, views of ``buf``.
 
-    Returns the array that holds the result.
+    ``v = [x; 1; h]``, ``x``, ``[x; 1]``, ``h``; the gates' pre-activations
+    ``g`` (3H), its parts for ``r`` and ``z`` together, for ``r``, for ``z``
+    and ``W_hn h + b_hn``; ``W_in x + b_in``; a scratch vector. Compiled
+    code slices them out of ``buf``; Python reads them from ``meta.views``,
+    sliced once by the numpy engine (:class:`~skcath.online._fast.NumpyStep`).
     """
-    expit(x, x)
-    return x
+    return meta.views[rec]
+
+
+@compiled_as(_head_vectors_sliced)
+def head_vectors(meta, buf, rec):
+    """The input ``[1; a]`` and the output of the head layer of record ``meta[rec:]``.
+
+    Views of ``buf``, sliced as :func:`gru_vectors` says.
+    """
+    return meta.views[rec]
+
+
+@compiled_as(_gates_compiled)
+def gates(rz, r_pre, z_pre, t, bits):
+    """The reset and update gates ``sigmoid(rz)``, ``rz`` holding both pre-activations.
+
+    Python evaluates them in place (``r_pre``, ``z_pre`` are the two halves of
+    ``rz``); compiled code into the float64 scratch ``t``. Returns the views
+    that hold ``r`` and ``z``.
+    """
+    expit(rz, rz)
+    return r_pre, z_pre
 
 
 @compiled_as(_tanh_of_sum_compiled)
@@ -278,24 +319,18 @@ def _gru(meta, f, w, w32, buf):
     candidate's matrix with ``[x; 1]`` gives ``W_in x + b_in``.
     """
     H = meta[M_HIDDEN]
-    g = buf[meta[M_GATES] : meta[M_GATES] + 3 * H]
-    cand = buf[meta[M_CAND] : meta[M_CAND] + H]
-    tmp = buf[meta[M_TMP] : meta[M_TMP] + H]
     t, bits = scratch(meta, f)
-    below = g
+    below = buf
     for k in range(meta[M_N_GRU]):
-        r = M_HEADER + GRU_RECORD * k
-        n_in = meta[r + GRU_N_IN]
-        at = meta[r + GRU_VECTOR]
-        v = buf[at : at + n_in + 1 + H]
+        rec = M_HEADER + GRU_RECORD * k
+        v, x, x1, h, g, rz, r_pre, z_pre, hn, cand, tmp = gru_vectors(meta, buf, rec)
         if k > 0:  # the input is the hidden state of the layer below
-            v[:H] = below
-        h = v[n_in + 1 :]
-        matvec(meta, r + GRU_GATES, w, w32, v, g)
-        matvec(meta, r + GRU_CAND, w, w32, v[: n_in + 1], cand)
-        rz = sigmoid(g[: 2 * H], t, bits)
-        n = tanh_of_sum(cand, rz[:H], g[2 * H :], t, bits, 2 * H)
-        blend(h, rz[H:], n, tmp)
+            x[:] = below
+        matvec(meta, rec + GRU_GATES, w, w32, v, g)
+        matvec(meta, rec + GRU_CAND, w, w32, x1, cand)
+        r, z = gates(rz, r_pre, z_pre, t, bits)
+        n = tanh_of_sum(cand, r, hn, t, bits, 2 * H)
+        blend(h, z, n, tmp)
         below = h
 
 
@@ -305,12 +340,10 @@ def _head(meta, f, w, w32, buf):
     first = M_HEADER + GRU_RECORD * meta[M_N_GRU]
     t, bits = scratch(meta, f)
     for k in range(meta[M_N_HEAD]):
-        r = first + HEAD_RECORD * k
-        src, dst = meta[r + HEAD_SRC], meta[r + HEAD_DST]
-        y = buf[dst : dst + meta[r + HEAD_MATRIX + MAT_ROWS]]
-        x = buf[src : src + meta[r + HEAD_MATRIX + MAT_COLS]]
-        matvec(meta, r + HEAD_MATRIX, w, w32, x, y)
-        if meta[r + HEAD_TANH]:
+        rec = first + HEAD_RECORD * k
+        x, y = head_vectors(meta, buf, rec)
+        matvec(meta, rec + HEAD_MATRIX, w, w32, x, y)
+        if meta[rec + HEAD_TANH]:
             tanh_inplace(y, t, bits)
 
 
@@ -363,7 +396,7 @@ def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
         _gru(meta, f, w, w32, buf)
     _head(meta, f, w, w32, buf)
     e = meta[M_RESULT]
-    c = f[F_CLIP]
+    c = float(f[F_CLIP])
     out[0] = min(max(float(buf[e]), -c), c) + bx
     out[1] = min(max(float(buf[e + 1]), -c), c) + by
     out[2] = min(max(float(buf[e + 2]), -c), c) + bz
