@@ -180,8 +180,7 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
             raise ValueError(
                 f"format='skops' cannot serialize this {type(estimator).__name__}: skops stores "
                 "neither torch tensors (the residual learners' networks and optimizer state) nor "
-                "pandas DataFrames (such as a backbone's calibrations_, the diagnostics of its "
-                "last transform, which may be deleted before saving). Use format='joblib'."
+                "pandas DataFrames. Use format='joblib'."
             ) from exc
     header = {
         "file_format": _FILE_FORMAT,
