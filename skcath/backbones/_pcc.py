@@ -645,10 +645,13 @@ def _check_p(p, n):
         "init": [PCCParams, None],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
         "return_info": ["boolean"],
+        "solver": [callable, None],
     },
     prefer_skip_nested_validation=True,
 )
-def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_info=False):
+def calibrate_pcc(
+    q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_info=False, solver=None
+):
     r"""Fit the PCC backbone to paired motor angles and tip positions.
 
     Minimises ``sum_i |g(q_i) - p_i|^2`` over the nine free parameters
@@ -679,6 +682,12 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
         Largest number of accepted Levenberg-Marquardt steps.
     return_info : bool
         Whether to return a dictionary of diagnostics as well.
+    solver : callable, default=None
+        The least-squares solver, called as
+        :func:`~skcath.backbones.levenberg_marquardt` is (same arguments,
+        an :class:`~skcath.backbones.LMResult` back); None means
+        :func:`~skcath.backbones.levenberg_marquardt`. Lets another solver
+        run on the same residuals, Jacobian and initial guess.
 
     Returns
     -------
@@ -728,7 +737,7 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
         R = _so3_exp(np.array([w[0], w[1], 0.0]))
         return _tip_and_jacobian_R(v, C, u0, L, R).ravel() - target
 
-    result = levenberg_marquardt(residuals, x0, max_iter=max_iter)
+    result = (solver or levenberg_marquardt)(residuals, x0, max_iter=max_iter)
     params = _params_from_free(result.x, q0, S_m)
     if not return_info:
         return params

@@ -718,6 +718,7 @@ def _check_calibration_inputs(q, p, labels, directions, neutral):
         "rho0": [Real, None],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
         "return_info": ["boolean"],
+        "solver": [callable, None],
     },
     prefer_skip_nested_validation=True,
 )
@@ -732,6 +733,7 @@ def calibrate_pdl(
     rho0=None,
     max_iter=50,
     return_info=False,
+    solver=None,
 ):
     """Calibrate the per-direction linear backbone on a multidirectional sweep.
 
@@ -775,6 +777,10 @@ def calibrate_pdl(
         Largest number of Gauss-Newton steps per ray.
     return_info : bool
         Whether to also return a summary of the fit.
+    solver : callable, default=None
+        The least-squares solver of every ray, as for
+        :func:`~skcath.backbones.calibrate_pcc`; None means
+        :func:`~skcath.backbones.levenberg_marquardt`.
 
     Returns
     -------
@@ -826,7 +832,7 @@ def calibrate_pdl(
     for k, idx in enumerate(rows):
         c0 = _initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0)
         problem = _RayProblem(rho[idx], p[idx], p0, basis, rho0)
-        result = levenberg_marquardt(problem, c0, max_iter=max_iter, ftol=FTOL)
+        result = (solver or levenberg_marquardt)(problem, c0, max_iter=max_iter, ftol=FTOL)
         coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
     coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
     params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)
