@@ -415,11 +415,36 @@ def test_prediction_of_a_run_depends_only_on_that_run(Est, data, reference):
 
 
 @pytest.mark.parametrize("Est", ESTIMATORS)
+def test_tips_as_python_equal_the_compiled_tips(Est, data, reference, monkeypatch):
+    """Without numba the same kernel runs as Python, to rounding the same tips."""
+    import skcath._kernel
+
+    monkeypatch.setattr(skcath._kernel, "compiled", lambda func: None)
+    X, _ = data
+    assert_allclose(Est().fit(X).predict(X), reference[Est], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("Est", ESTIMATORS)
+def test_calibrate_returns_what_predict_uses_and_keeps_nothing(Est, data, reference):
+    X, _ = data
+    est = Est().fit(X)
+    state = joblib.hash(vars(est))
+    calibration = est.calibrate(X)
+    assert set(calibration) == {"table", "params", "nominal"}
+    assert_array_equal(calibration.nominal, reference[Est])
+    assert list(calibration.table.index) == list(calibration.params) == _runs(X)
+    assert joblib.hash(vars(est)) == state
+    with pytest.raises(NotFittedError):
+        Est().calibrate(X)
+
+
+@pytest.mark.parametrize("Est", ESTIMATORS)
 def test_inputs_are_not_modified(Est, data):
     X, y = data
     X_copy, y_copy = X.copy(deep=True), y.copy()
     est = Est().fit(X, y)
     est.transform(X)
+    est.calibrate(X)
     est.score(X, y)
     _assert_same_frame(X, X_copy)
     assert_array_equal(y, y_copy)
