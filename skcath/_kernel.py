@@ -48,7 +48,7 @@ JIT_OPTIONS = {"nogil": True, "error_model": "numpy"}
 
 _lock = threading.RLock()
 _declared = []  # (function, compiled implementation), in order of declaration
-_state = {"numba": None, "registered": 0, "failed": False}
+_state = {"numba": None, "registered": 0}
 _compiled = {}
 
 
@@ -190,8 +190,8 @@ def compiled(func):
         return _compiled[func]
 
 
-def row_loop(tip_kernel):
-    """A loop evaluating ``tip_kernel(theta, q1, q2) -> (x, y, z)`` on every row.
+def row_loop(tip):
+    """A loop evaluating the tip kernel ``tip(theta, q1, q2) -> (x, y, z)`` on every row.
 
     The loop reads the motor angles from ``q1``, ``q2`` and writes the
     coordinates into ``x``, ``y``, ``z``: arrays when compiled, lists when run
@@ -200,9 +200,9 @@ def row_loop(tip_kernel):
 
     def loop(theta, q1, q2, x, y, z):
         for i in range(len(q1)):
-            x[i], y[i], z[i] = tip_kernel(theta, q1[i], q2[i])
+            x[i], y[i], z[i] = tip(theta, q1[i], q2[i])
 
-    loop.__doc__ = f"Rows of :func:`{tip_kernel.__name__}`."
+    loop.__doc__ = f"Rows of :func:`{tip.__name__}`."
     return loop
 
 

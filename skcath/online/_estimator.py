@@ -146,7 +146,7 @@ def _step_class(engine):
     """The step's class for ``engine``: the numba engine's where it applies, else the numpy one."""
     if engine == "numpy":
         return NumpyStep
-    try:
+    try:  # numba is optional: its engine is imported when it is asked for
         from . import _jit
     except ImportError as exc:
         if engine == "numba":

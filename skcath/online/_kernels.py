@@ -28,9 +28,10 @@ import numpy as np
 from scipy.special import expit
 
 from .._kernel import compiled_as, kernel
-from ..backbones import PCCParams, pcc_kernel, pdl_kernel
+from ..backbones import PCCParams, PDLParams, pcc_kernel, pdl_kernel
 from ._layout import (
     BACKBONE_PCC,
+    BACKBONE_PDL,
     F_CLIP,
     F_LAST,
     F_NOMINAL,
@@ -403,19 +404,32 @@ def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
 
 
 class BackboneStep:
-    """A calibrated backbone for one motor sample at a time: its tip kernel as Python.
+    """A run's backbone in the step: its tip kernel and its calibration packed for it.
 
     Parameters
     ----------
     params : PCCParams or PDLParams
         Calibrated parameters of the run.
+
+    Attributes
+    ----------
+    code : int
+        ``meta[M_BACKBONE]`` of this backbone.
+    theta : ndarray
+        The packed parameters (``params.pack()``).
     """
 
     def __init__(self, params):
+        if isinstance(params, PCCParams):
+            self.code, self._kernel = BACKBONE_PCC, pcc_kernel
+        elif isinstance(params, PDLParams):
+            self.code, self._kernel = BACKBONE_PDL, pdl_kernel
+        else:
+            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
         self.params = params
-        self._kernel = pcc_kernel if isinstance(params, PCCParams) else pdl_kernel
-        self._theta = params.pack().tolist()
+        self.theta = params.pack()
+        self._theta = self.theta.tolist()
 
     def __call__(self, q1, q2):
-        """Tip ``(x, y, z)`` in the base frame (mm) for the motor angles (deg)."""
+        """Tip ``(x, y, z)`` in the base frame (mm) for the motor angles (deg), as Python."""
         return self._kernel(self._theta, q1, q2)

@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 
 from .._kernel import offsets
-from ..backbones import PCCParams, PDLParams
 
 __all__ = ["FlatStore", "MatrixStore", "PackedStep"]
 
@@ -153,15 +152,6 @@ def _gru_matrices(W_ih, W_hh, b_ih, b_hh):
     return M, np.column_stack([W_ih[2 * H :], b_ih[2 * H :]])
 
 
-def backbone_code(params):
-    """``meta[M_BACKBONE]`` of a calibration."""
-    if isinstance(params, PCCParams):
-        return BACKBONE_PCC
-    if isinstance(params, PDLParams):
-        return BACKBONE_PDL
-    raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
-
-
 class PackedStep:
     """The arrays of one run's step, laid out as this module names them.
 
@@ -171,7 +161,7 @@ class PackedStep:
     Parameters
     ----------
     backbone : BackboneStep
-        The backbone's calibration of the run.
+        The backbone of the run: its kind and its packed calibration.
     weights : StepWeights or None
         The residual's folded weights (:func:`~skcath.online._weights.step_weights`),
         or None for the backbone alone.
@@ -204,7 +194,7 @@ class PackedStep:
         store = self.store(self.dtype)
         vectors = _Arena(self.dtype)
         header = np.zeros(M_HEADER, dtype=np.int64)
-        header[M_BACKBONE] = backbone_code(backbone.params)
+        header[M_BACKBONE] = backbone.code
         header[M_RESIDUAL] = RESIDUAL_NONE
         header[M_USE_TORQUE] = bool(use_torque)
         gru, head, hidden, n_scratch = [], [], [], 1
@@ -222,7 +212,7 @@ class PackedStep:
         self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
         self.f = np.zeros(F_SCRATCH + 2 * n_scratch)
         self.f[F_CLIP] = clip
-        self.theta = backbone.params.pack()
+        self.theta = backbone.theta
         self.w, self.w32 = store.arrays()
         self.buf = vectors.array()
         self.hidden = [self.buf[at : at + n] for at, n in hidden]
