@@ -17,6 +17,11 @@ compiled code calls:
   the compiler vectorises); both compute the same thing.
 
 The declarations take effect when numba is loaded (:func:`load_numba`).
+
+numba's cache (``cache=True``) recognises a changed source by the file of
+the function it compiled, not by the files of the kernels that function
+calls: after editing a kernel, delete the cached ``*.nbi`` / ``*.nbc`` files
+under ``skcath`` (or set ``NUMBA_CACHE_DIR`` to an empty folder).
 """
 
 from __future__ import annotations
