@@ -46,13 +46,20 @@ _SWEEP_LAYOUT_PARAMS = """n_rays : int, default=8
         (:func:`skcath.sweep.reduce_sweep`); see
         :func:`skcath.sweep.find_rays`."""
 
-_N_JOBS_PARAM = """n_jobs : int, default=None
-        Runs calibrated in parallel (joblib); None means 1."""
+# the solver's parameters and the attributes, common to both backbones (the
+# calibration's unit, "calibration" or "ray", formatted in)
+_SOLVER_PARAMS_AND_ATTRIBUTES = """max_iter : int, default=100
+        Largest number of Gauss-Newton steps per {}.
+    n_jobs : int, default=None
+        Runs calibrated in parallel (joblib); None means 1.
 
-_FITTED_ATTRIBUTES = """feature_names_in_ : ndarray of str
+    Attributes
+    ----------
+    feature_names_in_ : ndarray of str
         Columns of ``X`` seen in ``fit``.
     n_features_in_ : int
-        Number of columns of ``X`` seen in ``fit``."""
+        Number of columns of ``X`` seen in ``fit``. The calibrations of the
+        runs of ``X`` are returned by :meth:`calibrate`, not kept."""
 
 
 def _calibrate_run(backbone, run, q, ref, sweep):
@@ -252,13 +259,7 @@ class PCCBackbone(_BaseBackbone):
     Parameters
     ----------
     {_SWEEP_LAYOUT_PARAMS}
-    max_iter : int, default=100
-        Largest number of Gauss-Newton steps per calibration.
-    {_N_JOBS_PARAM}
-
-    Attributes
-    ----------
-    {_FITTED_ATTRIBUTES}
+    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("calibration")}
 
     See Also
     --------
@@ -314,13 +315,7 @@ class PDLBackbone(_BaseBackbone):
     Parameters
     ----------
     {_SWEEP_LAYOUT_PARAMS}
-    max_iter : int, default=100
-        Largest number of Gauss-Newton steps per ray.
-    {_N_JOBS_PARAM}
-
-    Attributes
-    ----------
-    {_FITTED_ATTRIBUTES}
+    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("ray")}
 
     See Also
     --------
