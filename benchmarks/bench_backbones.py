@@ -6,19 +6,29 @@ prints mean per-run RMSE per catheter and pooled, the share of runs where PDL
 beats PCC, and the median run-bin RMSE by motor-input magnitude (10-degree
 bins, as the paper's Fig. 5(b)).
 
+With ``--one-run`` it times instead, on the first run of the benchmark
+(one catheter), ``predict`` (calibration included) and the evaluation of the
+calibrated backbone on the run's rows (``pcc_tip``, ``pdl_tip``): the best of
+seven calls, after one call that compiles the loop over the rows (or loads
+it from numba's cache). Run it with and without ``NUMBA_DISABLE_JIT=1`` to
+compare the compiled loop with the same loop run as Python.
+
 Usage::
 
     python benchmarks/bench_backbones.py                 # default benchmark (play)
     python benchmarks/bench_backbones.py --mechanism all # the three mechanisms
+    python benchmarks/bench_backbones.py --one-run       # times on one run
+    NUMBA_DISABLE_JIT=1 python benchmarks/bench_backbones.py --one-run
 """
 
 import argparse
+import os
 import time
 
 import numpy as np
 import pandas as pd
 
-from skcath.backbones import PCCBackbone, PDLBackbone
+from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
 from skcath.datasets import MECHANISMS, make_benchmark
 from skcath.metrics import per_run_rmse
 
@@ -54,13 +64,44 @@ def evaluate(mechanism, n_catheters, random_state, n_jobs):
     return summary, pd.DataFrame(bins).T, (table["PDL"] < table["PCC"]).mean(), data.noise_floor, times
 
 
+def _best_of(n, func, *args):
+    """Shortest of ``n`` timed calls (s)."""
+    times = []
+    for _ in range(n):
+        start = time.perf_counter()
+        func(*args)
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def one_run_times(random_state):
+    """Print the times of ``predict`` and of the tip evaluation on one run."""
+    X = make_benchmark(n_catheters=1, n_runs=1, random_state=random_state).X
+    run = X[(X["run"] == X["run"].iloc[0]).to_numpy()]
+    q = run[["q1", "q2"]].to_numpy()
+    flag = os.environ.get("NUMBA_DISABLE_JIT", "unset")
+    print(f"run {run['run'].iloc[0]} ({len(run)} rows); NUMBA_DISABLE_JIT={flag}; best of 7 calls")
+    for est, tip in ((PCCBackbone(), pcc_tip), (PDLBackbone(), pdl_tip)):
+        calibration = est.fit(X).calibrate(run)  # compiles (or loads) the loop over the rows
+        params = calibration.params[run["run"].iloc[0]]
+        predict_s = _best_of(7, est.predict, run)
+        tip_s = _best_of(7, tip, q, params)
+        print(f"{type(est).__name__}: predict {1e3 * predict_s:.1f} ms, "
+              f"{tip.__name__} on the run's rows {1e3 * tip_s:.2f} ms")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mechanism", default="play", choices=[*MECHANISMS, "all"])
     parser.add_argument("--n-catheters", type=int, default=4)
     parser.add_argument("--random-state", type=int, default=0)
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument("--one-run", action="store_true",
+                        help="time predict and the tip evaluation on one run instead")
     args = parser.parse_args()
+    if args.one_run:
+        one_run_times(args.random_state)
+        return
     mechanisms = MECHANISMS if args.mechanism == "all" else (args.mechanism,)
     pd.set_option("display.width", 120)
     for mechanism in mechanisms:

@@ -10,11 +10,10 @@ each), this script calibrates both geometric backbones on the run's sweep rows
   :func:`skcath.backbones.calibrate_pcc`, as the estimators call them
   (``max_iter=100``; PCC with ``q0`` and ``S_m`` from the sweep's rays), i.e.
   :func:`skcath.backbones.levenberg_marquardt`;
-- ``scipy lm`` and ``scipy trf``: the very same calls, with the module-level
-  ``levenberg_marquardt`` of ``_pdl`` / ``_pcc`` replaced, for the duration
-  of the call, by an adapter that hands the same residual function, the same
-  analytic Jacobian and the same initial guess to
-  :func:`scipy.optimize.least_squares` (``method="lm"`` or ``"trf"``).
+- ``scipy lm`` and ``scipy trf``: the very same calls, with ``solver=`` an
+  adapter that hands the same residual function, the same analytic Jacobian
+  and the same initial guess to :func:`scipy.optimize.least_squares`
+  (``method="lm"`` or ``"trf"``).
   Everything else (input checks, neutral tip and basis, per-ray linear
   initial guess for PDL, data-driven initial guess for PCC, bookkeeping) is
   the same code, so the timings differ by the solver only.
@@ -74,11 +73,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from _machine import machine_lines
-from skcath import _format as fmt
-from skcath.backbones import _pcc, _pdl, calibrate_pcc, calibrate_pdl
-from skcath.backbones._lm import LMResult
-from skcath.datasets import make_benchmark
-from skcath.datasets._hysteresis import MECHANISMS
+from skcath import MOTOR_COLUMNS, REFERENCE_COLUMNS
+from skcath.backbones import LMResult, calibrate_pcc, calibrate_pdl, levenberg_marquardt
+from skcath.datasets import MECHANISMS, make_benchmark
 from skcath.sweep import check_sweep_references, find_rays
 
 SOLVERS = ("ours", "scipy lm", "scipy trf")
@@ -152,35 +149,26 @@ def _counting_ours(original, counts):
     return solve
 
 
-@contextlib.contextmanager
 def _solver(name, counts=None):
-    """Make ``_pdl`` and ``_pcc`` call the named solver inside the block."""
-    original = _pdl.levenberg_marquardt
-    if _pcc.levenberg_marquardt is not original:
-        raise RuntimeError("_pdl and _pcc no longer share levenberg_marquardt; update this script")
+    """The named solver, for the ``solver=`` argument of the calibrations."""
     if name == "ours":
-        replacement = original if counts is None else _counting_ours(original, counts)
-    elif name == REFERENCE:
-        replacement = _scipy_solver("lm", counts, tight=True)
-    else:
-        replacement = _scipy_solver(name.split()[1], counts)
-    _pdl.levenberg_marquardt = _pcc.levenberg_marquardt = replacement
-    try:
-        yield
-    finally:
-        _pdl.levenberg_marquardt = _pcc.levenberg_marquardt = original
+        return levenberg_marquardt if counts is None else _counting_ours(levenberg_marquardt, counts)
+    if name == REFERENCE:
+        return _scipy_solver("lm", counts, tight=True)
+    return _scipy_solver(name.split()[1], counts)
 
 
-def _calibrate(model, sweep):
-    """One calibration of ``model`` on a run's sweep; returns its info dict."""
+def _calibrate(model, sweep, solver):
+    """One calibration of ``model`` on a run's sweep with ``solver``; returns its info dict."""
     q, ref, rays = sweep["q"], sweep["ref"], sweep["rays"]
     if model == "PDL":
         return calibrate_pdl(
             q, ref, rays.labels, rays.directions, rays.neutral,
-            q_neutral=rays.q_neutral, max_iter=MAX_ITER, return_info=True,
+            q_neutral=rays.q_neutral, max_iter=MAX_ITER, return_info=True, solver=solver,
         )[1]
     return calibrate_pcc(
-        q, ref, q0=rays.q_neutral, S_m=rays.amplitude, max_iter=MAX_ITER, return_info=True
+        q, ref, q0=rays.q_neutral, S_m=rays.amplitude, max_iter=MAX_ITER, return_info=True,
+        solver=solver,
     )[1]
 
 
@@ -190,18 +178,18 @@ def _check_calls(model, name, counts, sweep):
     if counts["calls"] != expected:
         raise RuntimeError(
             f"{model} with solver {name!r} made {counts['calls']} solver call(s), expected "
-            f"{expected}: calibrate_{model.lower()} no longer calls the module-level "
-            "levenberg_marquardt once per problem; update this script."
+            f"{expected}: calibrate_{model.lower()} no longer calls its solver once per "
+            "problem; update this script."
         )
 
 
-def _timed(model, sweep):
+def _timed(model, sweep, solver):
     """Seconds of one calibration call, with the garbage collector off."""
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
         start = time.perf_counter()
-        _calibrate(model, sweep)
+        _calibrate(model, sweep, solver)
         return time.perf_counter() - start
     finally:
         if gc_was_enabled:
@@ -220,10 +208,10 @@ def _sweeps(args):
     gen_s = time.perf_counter() - start
     X = data.X
     bent = data.runs.loc[data.runs["bend_level"] != "straight", "run"].tolist()[: args.n_runs]
-    is_sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
-    run_of_row = X[fmt.RUN].astype(str).to_numpy()
-    q_all = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
-    ref_all = X[list(fmt.REFERENCE_COLUMNS)].to_numpy()
+    is_sweep = (X["phase"] == "sweep").to_numpy()
+    run_of_row = X["run"].astype(str).to_numpy()
+    q_all = X[list(MOTOR_COLUMNS)].to_numpy()
+    ref_all = X[list(REFERENCE_COLUMNS)].to_numpy()
     sweeps = []
     for run in bent:
         rows = np.flatnonzero(is_sweep & (run_of_row == run))
@@ -248,8 +236,7 @@ def _measure(sweeps, repeat, progress):
         for model in MODELS:
             for name in SOLVERS:
                 counts = {"nfev": 0, "njev": 0, "calls": 0, "max_nfev_hit": 0, "costs": []}
-                with _solver(name, counts):  # untimed pass: result and counts
-                    info = _calibrate(model, sweep)
+                info = _calibrate(model, sweep, _solver(name, counts))  # untimed: result, counts
                 _check_calls(model, name, counts, sweep)
                 row[(model, name)] = {
                     "cost": info["cost"],
@@ -259,16 +246,14 @@ def _measure(sweeps, repeat, progress):
                     "times_s": [],
                 }
             tight = {"nfev": 0, "njev": 0, "calls": 0, "max_nfev_hit": 0, "costs": []}
-            with _solver(REFERENCE, tight):
-                _calibrate(model, sweep)
+            _calibrate(model, sweep, _solver(REFERENCE, tight))
             _check_calls(model, REFERENCE, tight, sweep)
             per_call = np.array([tight["costs"]] + [row[(model, s)]["costs"] for s in SOLVERS])
             row[(model, REFERENCE)] = float(per_call.min(axis=0).sum())
         for _ in range(repeat):  # interleave the solvers within each repeat
             for model in MODELS:
                 for name in SOLVERS:
-                    with _solver(name):
-                        row[(model, name)]["times_s"].append(_timed(model, sweep))
+                    row[(model, name)]["times_s"].append(_timed(model, sweep, _solver(name)))
         for model in MODELS:
             for name in SOLVERS:
                 entry = row[(model, name)]

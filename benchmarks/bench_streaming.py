@@ -19,7 +19,8 @@ Variants, all with the backbone included (the same calibration of the run):
 - ``online float64, numpy`` / ``online float32, numpy``: the same with
   ``engine="numpy"``, the numpy stepping kernels;
 - ``plain torch GRUCell``: the loop a user would write in torch with the
-  same weights: the same backbone kernel for ``b``, the step features as a
+  same weights: the backbone's tip kernel (``pdl_kernel`` on the run's
+  calibration, ``backbone_params_``) for ``b``, the step features as a
   float32 tensor, normalised and concatenated with the context ``z`` in
   torch, one ``torch.nn.GRUCell`` step (weights copied from the fitted
   ``nn.GRU``), the head (``module_.head``), then ``sigma_e``, the rotation
@@ -32,11 +33,13 @@ Variants, all with the backbone included (the same calibration of the run):
   ``MLPResidual`` (default sizes) and ``NoResidual``, for scale, with each
   engine.
 
-The numba kernel is compiled when numba's cache is empty and loaded from it
-otherwise, by ``start``, outside the timed loop. The script reports the time
-of a compilation from scratch: a separate Python process compiles the kernel
-for float64 and float32 with an empty, temporary cache (``NUMBA_CACHE_DIR``),
-including the import of numba and skcath.
+The numba step is compiled when numba's cache is empty and loaded from it
+otherwise, by ``start``, outside the timed loop (``compile_seconds_``). The
+script reports the time of a compilation from scratch: a separate Python
+process loads the fitted GRU pipeline and starts an estimator with
+``engine="numba"`` for float64 and float32 with an empty, temporary cache
+(``NUMBA_CACHE_DIR``), and reports their ``compile_seconds_`` and the time
+it took to import numba and skcath.
 
 Each step is timed with ``time.perf_counter_ns``. The variants run
 interleaved in rounds of 1,000 steps (A B C ..., then again) so that a
@@ -78,6 +81,7 @@ import tracemalloc
 import warnings
 from pathlib import Path
 
+import joblib
 import numpy as np
 import torch
 from sklearn.pipeline import Pipeline
@@ -86,7 +90,7 @@ from threadpoolctl import threadpool_limits
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine_lines  # noqa: E402
 
-from skcath.backbones import PDLBackbone  # noqa: E402
+from skcath.backbones import PDLBackbone, pdl_kernel  # noqa: E402
 from skcath.datasets import make_benchmark  # noqa: E402
 from skcath.online import OnlineEstimator, export, export_io  # noqa: E402
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual  # noqa: E402
@@ -102,10 +106,16 @@ def _fit(residual, X, y):
     return pipe.fit(X[train], y[train])
 
 
+def _backbone(est):
+    """The run's calibrated backbone as a function of one motor sample."""
+    theta = est.backbone_params_.pack().tolist()
+    return lambda q1, q2: pdl_kernel(theta, q1, q2)
+
+
 class TorchLoop:
     """Plain torch stepping: ``GRUCell`` + head with the fitted weights."""
 
-    def __init__(self, pipe, est):
+    def __init__(self, pipe, est, last_sweep):
         res = pipe["residual"]
         module = res.module_
         gru = module.gru
@@ -123,8 +133,8 @@ class TorchLoop:
         self.R = est.rotation_
         self.sigma = res.sigma_e_
         self.clip = res.clip
-        self.backbone = est._backbone  # the same scalar backbone kernel
-        self.last_sweep = est._last_sweep
+        self.backbone = _backbone(est)  # the same tip kernel as the estimator's
+        self.last_sweep = last_sweep
         self.reset()
 
     def reset(self):
@@ -148,7 +158,7 @@ class TorchLoop:
 class OnnxLoop:
     """Stepping the exported ONNX graph in onnxruntime (one thread), backbone included."""
 
-    def __init__(self, pipe, est, path, dtype):
+    def __init__(self, pipe, est, last_sweep, path, dtype):
         import onnxruntime
 
         export(pipe, path, "onnx", dtype=dtype)
@@ -167,8 +177,8 @@ class OnnxLoop:
             "rotation": est.rotation_.astype(self.dtype),
             "context": est.context_[None].astype(self.dtype),
         }
-        self.backbone = est._backbone
-        self.last_sweep = est._last_sweep
+        self.backbone = _backbone(est)
+        self.last_sweep = last_sweep
         self.reset()
 
     def reset(self):
@@ -239,26 +249,26 @@ def _alloc(est, samples, n_steps):
 
 
 _COLD_COMPILE = """
-import time
+import sys, time
 t0 = time.perf_counter()
-import numpy as np
-from skcath.online import _jit
-from skcath.online._jit import step_kernel, _compile
+import joblib, numba
+from skcath.online import OnlineEstimator
 t1 = time.perf_counter()
-a64, a32 = np.zeros(4), np.zeros(4, np.float32)
-meta = np.zeros(4, np.int64)
-s64 = _compile(meta, a64, a64, a32, a64)
-s32 = _compile(meta, a64, a32, a32, a32)
-print(t1 - t0, s64, s32)
+pipe, sweep = joblib.load(sys.argv[1])
+seconds = [OnlineEstimator(pipe, dtype=dtype, engine="numba").start(sweep).compile_seconds_
+           for dtype in ("float64", "float32")]
+print(t1 - t0, *seconds)
 """
 
 
-def _cold_compile():
-    """Seconds to import and to compile the kernel for float64 and float32, cache empty."""
-    with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-        done = subprocess.run([sys.executable, "-c", _COLD_COMPILE], env=env, check=True,
-                              capture_output=True, text=True)
+def _cold_compile(pipe, sweep):
+    """Seconds to import, and to compile the step for float64 and float32, cache empty."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "pipe.joblib"
+        joblib.dump((pipe, sweep), path)
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(folder) / "cache"))
+        done = subprocess.run([sys.executable, "-c", _COLD_COMPILE, str(path)], env=env,
+                              check=True, capture_output=True, text=True)
     return tuple(float(v) for v in done.stdout.split())
 
 
@@ -270,7 +280,6 @@ def main(argv=None):
                         help="skip timing a compilation of the numba kernel from scratch")
     args = parser.parse_args(argv)
     has_numba = importlib.util.find_spec("numba") is not None
-    cold = _cold_compile() if has_numba and not args.no_cold_compile else None
     torch.set_num_threads(1)
     threadpool_limits(1)
 
@@ -287,10 +296,12 @@ def main(argv=None):
     motion = (run["phase"] == "motion").to_numpy()
     sweep = run[~motion]
     samples = [tuple(map(float, row)) for row in run.loc[motion, ["q1", "q2", "tau1", "tau2"]].to_numpy()]
+    last_sweep = tuple(float(v) for v in sweep[["q1", "q2"]].to_numpy()[-1])
+    cold = _cold_compile(pipes["gru"], sweep) if has_numba and not args.no_cold_compile else None
 
     engines = ["numba", "numpy"] if has_numba else ["numpy"]
     if has_numba:
-        importlib.import_module("skcath.online._jit")  # so that start_s leaves out the import
+        import numba  # here, so that start_s leaves out the import
     estimators, start_s = {}, {}
     for pipe, dtype, label in [("gru", "float64", "online float64"),
                                ("gru", "float32", "online float32"),
@@ -302,15 +313,15 @@ def main(argv=None):
             est = OnlineEstimator(pipes[pipe], dtype=dtype, engine=engine)
             estimators[name] = est.start(sweep)
             start_s[name] = time.perf_counter() - t0
-    torch_loop = TorchLoop(pipes["gru"], estimators["online float64, numpy"])
+    torch_loop = TorchLoop(pipes["gru"], estimators["online float64, numpy"], last_sweep)
     loops = {"plain torch GRUCell": torch_loop}
     tmp = tempfile.TemporaryDirectory()
     if importlib.util.find_spec("onnxruntime") is not None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # notices of torch's legacy ONNX exporter
             loops["onnxruntime float32"] = OnnxLoop(
-                pipes["gru"], estimators["online float32, numpy"], Path(tmp.name) / "step.onnx",
-                "float32",
+                pipes["gru"], estimators["online float32, numpy"], last_sweep,
+                Path(tmp.name) / "step.onnx", "float32",
             )
 
     # parity on one pass of the run
@@ -367,16 +378,16 @@ def main(argv=None):
           f"{args.steps} steps per variant; run {run['run'].iloc[0]} "
           f"({len(samples)} motion samples)")
     if has_numba:
-        import numba
-
+        compiled = [estimators[f"online {d}, numba"].compile_seconds_ for d in ("float64", "float32")]
         print(f"- numba {numba.__version__}; `start` of the GRU float64 / float32 estimators "
-              f"(numba engine, kernel compiled or loaded from numba's cache): "
+              f"(numba engine, step compiled or loaded from numba's cache in "
+              f"{compiled[0]:.2f} s / {compiled[1]:.2f} s): "
               f"{start_s['online float64, numba']:.2f} s / "
               f"{start_s['online float32, numba']:.2f} s (numpy engine: "
               f"{start_s['online float64, numpy']:.2f} s / "
               f"{start_s['online float32, numpy']:.2f} s)")
         if cold is not None:
-            print(f"- numba kernel compiled from scratch (empty cache, separate process): "
+            print(f"- numba step compiled from scratch (empty cache, separate process): "
                   f"float64 {cold[1]:.1f} s, float32 {cold[2]:.1f} s, after importing numba "
                   f"and skcath in {cold[0]:.1f} s")
     else:

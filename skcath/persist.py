@@ -144,11 +144,9 @@ def _skops_payload(estimator) -> bytes:
         return sio.dumps(to_plain(estimator))
     except (TypeError, RuntimeError) as exc:
         raise ValueError(
-            f"format='skops' cannot serialize this {type(estimator).__name__}: skops does not "
-            "store pandas DataFrames, such as a backbone's calibrations_ (with "
-            "calibration_params_, the diagnostics of its last transform, which may be deleted "
-            f"before saving), nor other objects it does not know ({exc}). Delete them, or use "
-            "format='joblib' for a file you will only load yourself."
+            f"format='skops' cannot serialize this {type(estimator).__name__}: it holds "
+            f"objects skops does not know, such as pandas DataFrames ({exc}). Remove them, or "
+            "use format='joblib' for a file you will only load yourself."
         ) from exc
 
 
@@ -192,7 +190,7 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
     ------
     ValueError
         ``format="skops"`` and the estimator holds objects skops cannot store
-        (a backbone's ``calibrations_``).
+        (such as a pandas DataFrame).
 
     Warns
     -----

@@ -218,13 +218,15 @@ def test_predict_shape_calibrations_and_params(Est, data, fitted):
     assert np.isfinite(pred).all()
 
     runs = _runs(X)
-    cal = est.calibrations_
+    calibration = est.calibrate(X)
+    assert_array_equal(calibration.nominal, pred)
+    cal = calibration.table
     assert isinstance(cal, pd.DataFrame)
     assert list(cal.index) == runs
     assert {"rmse_mm", "converged", "n_iter"} <= set(cal.columns)
     assert np.isfinite(cal["rmse_mm"]).all() and (cal["rmse_mm"] > 0).all()
     assert cal["converged"].dtype == bool
-    assert list(est.calibration_params_) == runs
+    assert list(calibration.params) == runs
 
     # PCC fits every sweep row with a reference, so its sweep RMSE is that of
     # the predictions on those rows
@@ -238,7 +240,7 @@ def test_predict_shape_calibrations_and_params(Est, data, fitted):
     # the calibration of a run is a plain function of the motor angles
     for run in runs:
         rows = (X["run"] == run).to_numpy()
-        params = est.calibration_params_[run]
+        params = calibration.params[run]
         assert isinstance(params, PARAMS[Est])
         q = X.loc[rows, ["q1", "q2"]].to_numpy()
         assert_allclose(TIP[Est](q, params), pred[rows], rtol=0, atol=1e-9)
@@ -392,7 +394,7 @@ def test_order_of_runs_does_not_matter(Est, data, reference):
     perm = np.concatenate([positions[k] for k in (2, 0, 1)])
     pred = est.predict(X.iloc[perm])
     assert_allclose(pred, pred_ref[perm], rtol=0, atol=1e-9)
-    assert list(est.calibrations_.index) == [runs[k] for k in (2, 0, 1)]
+    assert list(est.calibrate(X.iloc[perm]).table.index) == [runs[k] for k in (2, 0, 1)]
 
     # rows of all runs interleaved by time, each run still in time order,
     # with an index that is neither unique nor sorted
@@ -411,7 +413,31 @@ def test_prediction_of_a_run_depends_only_on_that_run(Est, data, reference):
     for subset in ([runs[2], runs[0]], [runs[1]]):
         rows = X["run"].isin(subset).to_numpy()
         assert_allclose(est.predict(X[rows]), reference[Est][rows], rtol=0, atol=1e-9)
-        assert sorted(est.calibrations_.index) == sorted(subset)
+        assert sorted(est.calibrate(X[rows]).table.index) == sorted(subset)
+
+
+@pytest.mark.parametrize("Est", ESTIMATORS)
+def test_tips_as_python_equal_the_compiled_tips(Est, data, reference, monkeypatch):
+    """Without numba the same kernel runs as Python, to rounding the same tips."""
+    import skcath._kernel
+
+    monkeypatch.setattr(skcath._kernel, "compiled", lambda func: None)
+    X, _ = data
+    assert_allclose(Est().fit(X).predict(X), reference[Est], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("Est", ESTIMATORS)
+def test_calibrate_returns_what_predict_uses_and_keeps_nothing(Est, data, reference):
+    X, _ = data
+    est = Est().fit(X)
+    state = joblib.hash(vars(est))
+    calibration = est.calibrate(X)
+    assert set(calibration) == {"table", "params", "nominal"}
+    assert_array_equal(calibration.nominal, reference[Est])
+    assert list(calibration.table.index) == list(calibration.params) == _runs(X)
+    assert joblib.hash(vars(est)) == state
+    with pytest.raises(NotFittedError):
+        Est().calibrate(X)
 
 
 @pytest.mark.parametrize("Est", ESTIMATORS)
@@ -420,6 +446,7 @@ def test_inputs_are_not_modified(Est, data):
     X_copy, y_copy = X.copy(deep=True), y.copy()
     est = Est().fit(X, y)
     est.transform(X)
+    est.calibrate(X)
     est.score(X, y)
     _assert_same_frame(X, X_copy)
     assert_array_equal(y, y_copy)
@@ -437,8 +464,9 @@ def test_exact_model_data_are_reproduced(Est):
     assert motion.sum() == 1600
     assert np.abs(pred[motion] - p[motion]).max() <= 1e-6
     assert np.abs(pred[~motion] - p[~motion]).max() <= 1e-6
-    assert (est.calibrations_["rmse_mm"] <= 1e-6).all()
-    assert est.calibrations_["converged"].all()
+    table = est.calibrate(X).table
+    assert (table["rmse_mm"] <= 1e-6).all()
+    assert table["converged"].all()
     # the scorer sees a perfect backbone
     assert est.score(X, p) == pytest.approx(0.0, abs=1e-6)
 
@@ -604,8 +632,9 @@ def test_clone_and_pickle(Est, data, reference, tmp_path):
 
     restored = pickle.loads(pickle.dumps(est))
     assert restored.get_params() == est.get_params()
-    assert list(restored.calibration_params_) == list(est.calibration_params_)
-    _assert_same_frame(restored.calibrations_, est.calibrations_)
+    restored_calibration, calibration = restored.calibrate(X1), est.calibrate(X1)
+    assert list(restored_calibration.params) == list(calibration.params)
+    _assert_same_frame(restored_calibration.table, calibration.table)
     assert_array_equal(restored.predict(X1), reference[Est][rows])
 
     joblib.dump(est, tmp_path / "backbone.joblib")
@@ -619,10 +648,9 @@ def test_n_jobs_gives_the_same_predictions(Est, data, fitted):
     serial, pred = fitted[Est]
     est = Est(n_jobs=2).fit(X)
     assert_allclose(est.predict(X), pred, rtol=0, atol=1e-12)
-    assert list(est.calibrations_.index) == list(serial.calibrations_.index)
-    assert_allclose(
-        est.calibrations_.to_numpy(float), serial.calibrations_.to_numpy(float), rtol=1e-12
-    )
+    table, serial_table = est.calibrate(X).table, serial.calibrate(X).table
+    assert list(table.index) == list(serial_table.index)
+    assert_allclose(table.to_numpy(float), serial_table.to_numpy(float), rtol=1e-12)
 
 
 @pytest.mark.parametrize("Est", ESTIMATORS)

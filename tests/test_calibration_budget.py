@@ -222,7 +222,7 @@ def test_backbones_calibrate_on_reduced_sweeps(bench, Est):
         assert np.isfinite(pred).all()
         errors[n_rays] = mean_per_run_rmse(yr, pred, Xr)
         if Est is PDLBackbone:
-            assert all(p.n_rays == n_rays for p in est.calibration_params_.values())
+            assert all(p.n_rays == n_rays for p in est.calibrate(Xr).params.values())
     # fewer rays never help, and 8 rays with the spacing given is the default backbone
     assert errors[3] > errors[8]
     np.testing.assert_allclose(Est(ray_spacing_deg=45.0).fit(X).predict(X), Est().fit(X).predict(X))

@@ -30,8 +30,8 @@ _ARRAYS = "It feeds numeric arrays, but a backbone takes only long-format record
 EXPECTED_FAILED_CHECKS = {
     "check_complex_data": f"{_ARRAYS}; check_recordings refuses complex channels.",
     "check_dict_unchanged": (
-        f"{_ARRAYS}; besides, predict records the calibrations of its runs in "
-        "calibrations_ by design."
+        f"{_ARRAYS}; test_predict_and_transform_leave_the_estimator_unchanged checks the "
+        "property."
     ),
     "check_dont_overwrite_parameters": (
         f"{_ARRAYS}; test_fit_sets_only_private_or_trailing_underscore_attributes "
@@ -70,7 +70,7 @@ EXPECTED_FAILED_CHECKS = {
         f"{_ARRAYS}; test_fit_records_columns checks the property."
     ),
     "check_non_transformer_estimators_n_iter": (
-        f"{_ARRAYS}; besides, fit runs no solver: calibrations_ holds each run's n_iter."
+        f"{_ARRAYS}; besides, fit runs no solver: calibrate(X).table holds each run's n_iter."
     ),
     "check_pipeline_consistency": f"{_ARRAYS}; test_backbones checks a Pipeline on recordings.",
     "check_positive_only_tag_during_fit": f"{_ARRAYS}.",
@@ -86,7 +86,7 @@ EXPECTED_FAILED_CHECKS = {
     "check_transformer_data_not_an_array": f"{_ARRAYS}.",
     "check_transformer_general": f"{_ARRAYS}; test_backbones checks transform on recordings.",
     "check_transformer_n_iter": (
-        f"{_ARRAYS}; besides, fit runs no solver: calibrations_ holds each run's n_iter."
+        f"{_ARRAYS}; besides, fit runs no solver: calibrate(X).table holds each run's n_iter."
     ),
     "check_transformer_preserve_dtypes": f"{_ARRAYS}; b_x, b_y, b_z are always float64.",
 }
@@ -253,6 +253,18 @@ def test_fit_sets_only_private_or_trailing_underscore_attributes(Est, recordings
     est.predict(X)
     added = {k for k in vars(est) if not k.startswith("_")} - public_before
     assert added and all(k.endswith("_") for k in added)
+
+
+def test_predict_and_transform_leave_the_estimator_unchanged(Est, recordings):
+    """check_dict_unchanged on recordings: the attributes are the same objects, unchanged."""
+    X, y = recordings
+    est = Est().fit(X, y)
+    for method in ("predict", "transform", "calibrate", "score"):
+        dict_before = est.__dict__.copy()
+        state = joblib.hash(est.__dict__)
+        getattr(est, method)(*((X, y) if method == "score" else (X,)))
+        assert est.__dict__ == dict_before, f"{method} changes __dict__"
+        assert joblib.hash(est.__dict__) == state, f"{method} changes an attribute's value"
 
 
 def test_fit_records_columns(Est, recordings):

@@ -198,3 +198,28 @@ def test_export_errors(data, pipelines, tmp_path):
     with pytest.raises(ValueError, match="no network to export"):
         export(plain, tmp_path / "x.onnx")
     assert not (tmp_path / "x.onnx").exists()
+
+
+@pytest.mark.parametrize(
+    "Est, params",
+    [(GRUResidual, {}), (GRUResidual, {"module__num_layers": 2}), (MLPResidual, {})],
+    ids=["gru", "gru-two-layers", "mlp"],
+)
+def test_module_step_matches_forward(pipelines, Est, params):
+    """The step the export traces is the network's forward, one time step at a time."""
+    module = copy.deepcopy(pipelines(Est, **params)["residual"].module_).double()
+    names = list(module.state_dict())
+    generator = torch.Generator().manual_seed(0)
+    features = torch.randn(2, 7, 9, generator=generator, dtype=torch.float64)
+    sweep = torch.randn(2, 5, 4, generator=generator, dtype=torch.float64)
+    lengths = torch.tensor([5, 3])
+    with torch.no_grad():
+        expected = module(features, sweep, lengths)
+        z = module.encoder(sweep, lengths)
+        hidden = None
+        for t in range(features.shape[1]):
+            F, hidden = module.step(torch.cat([features[:, t], z], dim=1), hidden)
+            assert_allclose(F.numpy(), expected[:, t].numpy(), rtol=0, atol=1e-12)
+    if Est is GRUResidual:
+        assert hidden.shape == (module.gru.num_layers, 2, module.gru.hidden_size)
+    assert list(module.state_dict()) == names  # the cells are not submodules

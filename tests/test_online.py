@@ -12,6 +12,9 @@ The networks are tiny and train for one epoch on two shortened runs.
 """
 
 import copy
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -24,7 +27,7 @@ from sklearn.utils._param_validation import InvalidParameterError
 from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
 from skcath.datasets import make_benchmark
 from skcath.online import OnlineEstimator, calibrate_sweep
-from skcath.online._fast import PCCStep, PDLStep
+from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
 from _helpers import tiny_residual
@@ -185,8 +188,7 @@ def test_start_matches_backbone_calibration(data, pipelines):
     sweep, _, _ = _split(X_run)
     est = OnlineEstimator(pipe).start(sweep)
     backbone = pipe["backbone"]
-    backbone.predict(X_run)
-    expected = backbone.calibration_params_[est.run_]
+    expected = backbone.calibrate(X_run).params[est.run_]
     assert est.run_ == X_run["run"].iloc[0]
     assert_allclose(est.backbone_params_.coef, expected.coef)
     assert est.rotation_.shape == (3, 3)
@@ -198,6 +200,31 @@ def test_start_matches_backbone_calibration(data, pipelines):
     q = sweep[["q1", "q2"]].to_numpy()
     assert est.q_amplitude_ == pytest.approx(np.linalg.norm(q - est.q_neutral_, axis=1).max())
     assert est.q_limit_ == pytest.approx(1.25 * est.q_amplitude_)
+
+
+def test_encode_context_gives_the_context_of_start(data, pipelines):
+    X, _, X_run = data
+    residual = pipelines(PDLBackbone, "gru")["residual"]
+    z = residual.encode_context(X)  # one context per run, in order of appearance
+    assert z.shape == (2, 4) and z.dtype == np.float64
+    first = X[(X["run"] == X["run"].iloc[0]).to_numpy()]
+    assert_allclose(residual.encode_context(first), z[:1], rtol=0, atol=1e-6)
+    sweep, _, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(sweep)
+    assert_allclose(residual.encode_context(sweep, dtype="float64")[0], est.context_, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="use_context=False"):
+        pipelines(PDLBackbone, "gru", use_torque=False, use_context=False)["residual"].encode_context(X)
+    with pytest.raises(NotFittedError):
+        GRUResidual().encode_context(X)
+
+
+def test_importing_the_package_does_not_import_numba():
+    import skcath
+
+    code = "import sys, skcath, skcath.backbones, skcath.online; assert 'numba' not in sys.modules"
+    root = os.path.dirname(os.path.dirname(skcath.__file__))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=root)
 
 
 # ---------------------------------------------------------------------------

@@ -28,7 +28,7 @@ pytest.importorskip(
 import skcath.online  # noqa: E402
 from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip  # noqa: E402
 from skcath.online import OnlineEstimator, calibrate_sweep  # noqa: E402
-from skcath.online._fast import PCCStep, PDLStep  # noqa: E402
+from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep  # noqa: E402
 from skcath.online._jit import JitStep, _exp, _tanh  # noqa: E402
 from test_online import (  # noqa: E402,F401  (fixtures)
     CHANNELS,
@@ -77,7 +77,7 @@ def test_numba_step_matches_predict(data, pipelines, run_nominal, Backbone, kind
     tips32, ref32, est32 = _engines(pipe, sweep, samples, dtype="float32")
     assert_allclose(tips32, ref32, rtol=0, atol=FLOAT32_ENGINES_TOL_MM)
     if kind != "none":
-        assert est32._jit[-1].w.dtype == np.float32
+        assert est32._packed.w.dtype == np.float32
         nominal = run_nominal[Backbone][["b_x", "b_y", "b_z"]].to_numpy()[motion]
         assert np.abs(tips - nominal).max() > 1e-3  # the network is not a no-op
 
@@ -119,11 +119,11 @@ def test_weights_not_held_by_float32_are_kept_in_float64(data, pipelines):
     tips, ref, est = _engines(pipe, sweep, samples[:100])
     assert_allclose(tips, ref, rtol=0, atol=FLOAT64_TOL_MM)
     # nothing of this network was stored in float32
-    assert est._jit[-1].w32.size == 1 and est._jit[-1].w.size > 100
+    assert est._packed.w32.size == 1 and est._packed.w.size > 100
     # as fitted (float32 weights), the weights left unfolded are stored in float32:
     # W_hh (the biases sit in the block of the inputs) and the head's hidden layer
     fitted = pipelines(PDLBackbone, "gru")
-    kernel = OnlineEstimator(fitted, engine="numba").start(sweep)._jit[-1]
+    kernel = OnlineEstimator(fitted, engine="numba").start(sweep)._packed
     H, hidden = fitted["residual"].module_.gru.hidden_size, fitted["residual"].module_.head[0]
     assert kernel.w32.size == 3 * H * H + hidden.out_features * (hidden.in_features + 1)
 

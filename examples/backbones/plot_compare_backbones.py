@@ -40,18 +40,20 @@ data = make_benchmark(n_catheters=1, n_runs=2)
 X, y = data.X, data.y
 
 backbones = {"PCC": PCCBackbone(), "PDL": PDLBackbone()}
-nominal = {name: backbone.fit(X).predict(X) for name, backbone in backbones.items()}
+calibrations = {name: backbone.fit(X).calibrate(X) for name, backbone in backbones.items()}
+nominal = {name: calibration.nominal for name, calibration in calibrations.items()}
 colors = {"PCC": "tab:blue", "PDL": "tab:red"}
 
 # %%
-# After ``predict``, ``calibrations_`` holds one row per run with the fitted
-# parameters and the RMSE of the fit on the run's own sweep. Even on the
+# ``calibrate`` returns, beside the nominal tips that ``predict`` gives, a
+# table with one row per run: the fitted parameters and the RMSE of the fit
+# on the run's own sweep. Even on the
 # samples it was calibrated on, neither model comes near the sensor noise
 # (about 0.5 mm): the outward and the return branch of every sweep ray are
 # apart by the hysteresis, and a function of the motor angles can only pass
 # between them. PDL, with 48 coefficients against the 9 of PCC, fits the
 # sweep more closely.
-sweep_rmse = pd.DataFrame({name: b.calibrations_["rmse_mm"] for name, b in backbones.items()})
+sweep_rmse = pd.DataFrame({name: c.table["rmse_mm"] for name, c in calibrations.items()})
 sweep_rmse.describe().loc[["mean", "min", "max"]].round(2)
 
 # %%

@@ -178,8 +178,9 @@ plt.show()
 # and estimates the tip of the motion rows from the motor angles alone; the
 # per-run RMSE over the motion rows leaves out the lost samples.
 backbone = PDLBackbone().fit(X)
-nominal = backbone.predict(X)
-print(backbone.calibrations_[["rmse_mm", "converged"]])
+calibration = backbone.calibrate(X)
+nominal = calibration.nominal  # what backbone.predict(X) returns
+print(calibration.table[["rmse_mm", "converged"]])
 per_run_rmse(y, nominal, X)
 
 # %%

@@ -2,8 +2,8 @@
 
 from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ._lm import LMResult, levenberg_marquardt
-from ._pcc import PCCParams, calibrate_pcc, pcc_tip
-from ._pdl import PDLParams, calibrate_pdl, pdl_tip
+from ._pcc import PCCParams, calibrate_pcc, pcc_kernel, pcc_tip
+from ._pdl import PDLParams, calibrate_pdl, pdl_kernel, pdl_tip
 from ._polynomial import PolynomialBackbone
 
 __all__ = [
@@ -17,6 +17,8 @@ __all__ = [
     "calibrate_pcc",
     "calibrate_pdl",
     "levenberg_marquardt",
+    "pcc_kernel",
     "pcc_tip",
+    "pdl_kernel",
     "pdl_tip",
 ]

@@ -4,8 +4,10 @@ A backbone ``g_xi(q)`` is calibrated separately for every recording from that
 recording's initial sweep rows (motor angles and reference tip positions),
 then evaluated on all rows of the recording. Nothing is learned across runs:
 ``fit`` only validates the input and records its columns, and the calibration
-happens in ``transform`` / ``predict``, where each run's sweep is part of the
-input. Reference values on motion rows are never read.
+happens in ``calibrate`` (and in ``transform`` / ``predict``, which use it),
+where each run's sweep is part of the input; it returns the calibrations and
+leaves the estimator unchanged. Reference values on motion rows are never
+read.
 """
 
 from numbers import Integral, Real
@@ -14,6 +16,7 @@ import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, _fit_context
+from sklearn.utils import Bunch
 from sklearn.utils._param_validation import Interval
 from sklearn.utils.validation import check_is_fitted
 
@@ -44,17 +47,20 @@ _SWEEP_LAYOUT_PARAMS = """n_rays : int, default=8
         (:func:`skcath.sweep.reduce_sweep`); see
         :func:`skcath.sweep.find_rays`."""
 
-_N_JOBS_PARAM = """n_jobs : int, default=None
-        Runs calibrated in parallel (joblib); None means 1."""
+# the solver's parameters and the attributes, common to both backbones (the
+# calibration's unit, "calibration" or "ray", formatted in)
+_SOLVER_PARAMS_AND_ATTRIBUTES = """max_iter : int, default=100
+        Largest number of Gauss-Newton steps per {}.
+    n_jobs : int, default=None
+        Runs calibrated in parallel (joblib); None means 1.
 
-_CALIBRATION_ATTRIBUTES = """feature_names_in_ : ndarray of str
+    Attributes
+    ----------
+    feature_names_in_ : ndarray of str
         Columns of ``X`` seen in ``fit``.
     n_features_in_ : int
-        Number of columns of ``X`` seen in ``fit``.
-    calibrations_ : pandas.DataFrame
-        Set by ``transform`` / ``predict``: one row per run of the last call,
-        with the fitted parameters, the sweep RMSE ``rmse_mm`` (mm), the number
-        of iterations and whether the solver converged."""
+        Number of columns of ``X`` seen in ``fit``. The calibrations of the
+        runs of ``X`` are returned by :meth:`calibrate`, not kept."""
 
 
 def _calibrate_run(backbone, run, q, ref, sweep):
@@ -105,9 +111,36 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         self._record_columns(X)
         return self
 
-    def _calibrate_all(self, X):
+    def calibrate(self, X):
+        """Calibrate every run of ``X`` on its own sweep; the estimator is left unchanged.
+
+        What ``predict`` and ``transform`` do for each run, with the
+        calibrations themselves returned.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format; every run needs its sweep rows
+            with reference tip positions.
+
+        Returns
+        -------
+        calibration : sklearn.utils.Bunch
+            ``table``: a pandas.DataFrame indexed by run id, in order of
+            first appearance, with the fitted parameters (the keys of the
+            parameters' ``to_dict``), the sweep RMSE ``rmse_mm`` (mm), the
+            number of solver iterations ``n_iter`` and whether the solver
+            converged (``converged``); ``params``: a dict run id ->
+            parameters (:class:`PCCParams` or :class:`PDLParams`, usable with
+            :func:`pcc_tip` / :func:`pdl_tip`); ``nominal``: the nominal tip
+            position of every row, ndarray of shape (n_samples, 3) (mm).
+        """
         check_is_fitted(self)
         X, _ = check_recordings(X)
+        return self._calibrate_checked(X)
+
+    def _calibrate_checked(self, X):
+        """:meth:`calibrate` on recordings already checked."""
         _, runs = run_codes(X)
         positions = run_positions(X)
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
@@ -123,9 +156,8 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             nominal[pos] = tip
             params[run] = par
             records.append({fmt.RUN: run, **par.to_dict(), **_summary(info)})
-        self.calibrations_ = pd.DataFrame.from_records(records).set_index(fmt.RUN)
-        self.calibration_params_ = params
-        return X, nominal
+        table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
+        return Bunch(table=table, params=params, nominal=nominal)
 
     def predict(self, X):
         """Nominal tip position of every row, each run calibrated on its own sweep.
@@ -133,15 +165,14 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         Parameters
         ----------
         X : pandas.DataFrame
-            Recordings in the long format; every run needs its sweep rows
-            with reference tip positions.
+            Recordings in the long format, as for :meth:`calibrate`.
 
         Returns
         -------
         b : ndarray of shape (n_samples, 3)
             Nominal tip position ``g_xi(q)`` in the base frame (mm).
         """
-        return self._calibrate_all(X)[1]
+        return self.calibrate(X).nominal
 
     def transform(self, X):
         """Append the nominal tip position ``b_x, b_y, b_z`` (mm) to the recordings.
@@ -163,7 +194,8 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
                 f"them followed by {list(BACKBONE_COLUMNS)}); fit saw "
                 f"{list(self.feature_names_in_)}, got {list(X.columns)}."
             )
-        X, nominal = self._calibrate_all(X)
+        X, _ = check_recordings(X)
+        nominal = self._calibrate_checked(X).nominal
         Xt = X.copy()
         for k, name in enumerate(BACKBONE_COLUMNS):
             Xt[name] = nominal[:, k]
@@ -228,16 +260,7 @@ class PCCBackbone(_BaseBackbone):
     Parameters
     ----------
     {_SWEEP_LAYOUT_PARAMS}
-    max_iter : int, default=100
-        Largest number of Gauss-Newton steps per calibration.
-    {_N_JOBS_PARAM}
-
-    Attributes
-    ----------
-    {_CALIBRATION_ATTRIBUTES}
-    calibration_params_ : dict
-        Run id -> :class:`PCCParams` of the last call, usable with
-        :func:`pcc_tip`.
+    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("calibration")}
 
     See Also
     --------
@@ -293,16 +316,7 @@ class PDLBackbone(_BaseBackbone):
     Parameters
     ----------
     {_SWEEP_LAYOUT_PARAMS}
-    max_iter : int, default=100
-        Largest number of Gauss-Newton steps per ray.
-    {_N_JOBS_PARAM}
-
-    Attributes
-    ----------
-    {_CALIBRATION_ATTRIBUTES}
-    calibration_params_ : dict
-        Run id -> :class:`PDLParams` of the last call, usable with
-        :func:`pdl_tip`.
+    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("ray")}
 
     See Also
     --------
@@ -320,6 +334,8 @@ class PDLBackbone(_BaseBackbone):
     >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
     >>> Xt = PDLBackbone().fit_transform(data.X)  # doctest: +SKIP
     >>> Xt[["b_x", "b_y", "b_z"]].shape  # doctest: +SKIP
+    >>> calibration = PDLBackbone().fit(data.X).calibrate(data.X)  # doctest: +SKIP
+    >>> calibration.table[["rmse_mm", "n_iter", "converged"]]  # doctest: +SKIP
     """
 
     def _calibrate(self, q, ref, rays):

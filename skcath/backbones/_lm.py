@@ -6,8 +6,10 @@ iteration is a handful of small matrix products and a p x p solve.
 """
 
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
+from sklearn.utils._param_validation import Interval, validate_params
 
 __all__ = ["LMResult", "levenberg_marquardt"]
 
@@ -34,6 +36,18 @@ class LMResult:
     converged: bool
 
 
+@validate_params(
+    {
+        "fun": [callable],
+        "x0": ["array-like"],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "ftol": [Interval(Real, 0, None, closed="left")],
+        "xtol": [Interval(Real, 0, None, closed="left")],
+        "damping": [Interval(Real, 0, None, closed="neither")],
+        "retract": [callable, None],
+    },
+    prefer_skip_nested_validation=True,
+)
 def levenberg_marquardt(
     fun,
     x0,

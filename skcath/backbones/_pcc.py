@@ -36,9 +36,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
+from sklearn.utils._param_validation import Interval, validate_params
 
+from .._kernel import evaluate_rows, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
 from ._lm import levenberg_marquardt
 
@@ -47,6 +50,7 @@ __all__ = [
     "PCCParams",
     "calibrate_pcc",
     "pcc_jacobian",
+    "pcc_kernel",
     "pcc_tip",
 ]
 
@@ -60,6 +64,15 @@ _MIN_ROWS = 10
 # the closed forms, whose cancellation error is ~3e-16 relative at alpha = 2.
 _SERIES_MAX = 4.0
 _N_TERMS = 14
+
+# Layout of the packed vector of PCCParams.pack(), read by pcc_kernel: offsets
+# of the motor reference q0 (2, deg), the scale S_m (deg), C row by row (4),
+# u0 (2, rad), L R_g row by row (9, mm), then the Taylor coefficients in
+# alpha^2 of f = (1 - cos a) / a^2 and of s = sin a / a, highest power first
+# (_N_TERMS each).
+(PCC_Q0, PCC_S_M, PCC_C, PCC_U0, PCC_LR, PCC_F_SERIES, PCC_S_SERIES, PCC_PACKED_SIZE) = offsets(
+    2, 1, 4, 2, 9, _N_TERMS, _N_TERMS
+)
 # Rows within this distance of the smallest |q - q0| / S_m count as neutral
 # for the initial guess.
 _NEUTRAL_BAND = 0.02
@@ -333,6 +346,28 @@ class PCCParams:
             R_g=_so3_exp(np.array([d["rg_x"], d["rg_y"], d["rg_z"]], dtype=float)),
         )
 
+    def pack(self):
+        """The parameters as the flat vector that :func:`pcc_kernel` reads.
+
+        Returns
+        -------
+        theta : ndarray of shape (PCC_PACKED_SIZE,)
+            float64, laid out by the offsets ``PCC_*`` of this module: ``q0``
+            (deg), ``S_m`` (deg), ``C`` row by row, ``u0`` (rad), ``L R_g``
+            row by row (mm), and the Taylor coefficients in ``alpha^2`` of
+            ``(1 - cos alpha) / alpha^2`` and ``sin alpha / alpha``, highest
+            power first.
+        """
+        theta = np.empty(PCC_PACKED_SIZE)
+        theta[PCC_Q0 : PCC_Q0 + 2] = self.q0
+        theta[PCC_S_M] = self.S_m
+        theta[PCC_C : PCC_C + 4] = self.C.ravel()
+        theta[PCC_U0 : PCC_U0 + 2] = self.u0
+        theta[PCC_LR : PCC_LR + 9] = (self.L * self.R_g).ravel()
+        theta[PCC_F_SERIES : PCC_F_SERIES + _N_TERMS] = _TABLE[0, ::-1]
+        theta[PCC_S_SERIES : PCC_S_SERIES + _N_TERMS] = _TABLE[1, ::-1]
+        return theta
+
 
 # ---------------------------------------------------------------------------
 # model
@@ -351,21 +386,39 @@ def _check_q(q, name="q"):
     return arr
 
 
-def _check_params(params):
-    """Raise ``TypeError`` unless ``params`` is a :class:`PCCParams`."""
-    if not isinstance(params, PCCParams):
-        raise TypeError(f"params must be a PCCParams; got {type(params).__qualname__}.")
-    return params
+@tip_kernel("PCCParams")
+def pcc_kernel(theta, q1, q2):
+    """Tip of the PCC backbone for one motor sample: the one scalar form of eq. pcc.
+
+    Plain ``math`` on floats, compiled by numba where it is available (see
+    :mod:`skcath._kernel`); :func:`pcc_tip` runs it on every row and the
+    streaming estimator on every sample.
+    """
+    v1 = (q1 - theta[PCC_Q0]) / theta[PCC_S_M]
+    v2 = (q2 - theta[PCC_Q0 + 1]) / theta[PCC_S_M]
+    u1 = v1 * theta[PCC_C] + v2 * theta[PCC_C + 1] + theta[PCC_U0]
+    u2 = v1 * theta[PCC_C + 2] + v2 * theta[PCC_C + 3] + theta[PCC_U0 + 1]
+    x = u1 * u1 + u2 * u2
+    if x < _SERIES_MAX:  # Taylor series in x = alpha^2, as _arc_ratios
+        fs, ss = PCC_F_SERIES, PCC_S_SERIES
+        f, s = theta[fs], theta[ss]
+        for k in range(1, _N_TERMS):
+            f = f * x + theta[fs + k]
+            s = s * x + theta[ss + k]
+    else:
+        a = math.sqrt(x)
+        f = 2.0 * math.sin(0.5 * a) ** 2 / x
+        s = math.sin(a) / a
+    h1, h2 = u1 * f, u2 * f
+    R = PCC_LR
+    return (
+        theta[R] * h1 + theta[R + 1] * h2 + theta[R + 2] * s,
+        theta[R + 3] * h1 + theta[R + 4] * h2 + theta[R + 5] * s,
+        theta[R + 6] * h1 + theta[R + 7] * h2 + theta[R + 8] * s,
+    )
 
 
-def _tip(v, C, u0, L, R):
-    """Tip positions (n, 3) in mm for normalised motor inputs ``v = (q - q0) / S_m``."""
-    u = v @ C.T + u0
-    f, s = _arc_ratios(np.einsum("ij,ij->i", u, u), derivatives=False)
-    h = np.empty((u.shape[0], 3))
-    h[:, :2] = u * f[:, None]
-    h[:, 2] = s
-    return L * (h @ R.T)
+_PCC_ROWS = row_loop(pcc_kernel)
 
 
 def _tip_and_jacobian(v, C, u0, L, w):
@@ -378,21 +431,29 @@ def _tip_and_jacobian(v, C, u0, L, w):
     return _tip_and_jacobian_R(v, C, u0, L, R, wv)
 
 
-def _tip_and_jacobian_R(v, C, u0, L, R, wv):
-    r"""Tip and Jacobian for ``R = exp([wv]^) R_z`` with the roll ``R_z`` held fixed.
+def _tip_and_jacobian_R(v, C, u0, L, R, wv=None):
+    r"""Tips of many rows at once, and their Jacobian for ``R = exp([wv]^) R_z``.
 
-    With ``h(u) = [u f, s]``, ``dh/du = [[f + F u1^2, F u1 u2], [F u1 u2,
-    f + F u2^2], [S u1, S u2]]``; ``du_i / dC_jk = delta_ij v_k``,
-    ``du / du0 = I``; ``dg/dL = R h``; ``dg/dw_k = (J_l(w) e_k) x g``.
+    The vectorised form of eq. pcc that the calibration evaluates, because
+    the Jacobian needs its intermediates; :func:`pcc_kernel` is the form
+    evaluated everywhere else. Without ``wv`` only the tips are returned.
+    The roll ``R_z`` is held fixed: with ``h(u) = [u f, s]``,
+    ``dh/du = [[f + F u1^2, F u1 u2], [F u1 u2, f + F u2^2], [S u1, S u2]]``;
+    ``du_i / dC_jk = delta_ij v_k``, ``du / du0 = I``; ``dg/dL = R h``;
+    ``dg/dw_k = (J_l(w) e_k) x g``.
     """
     n = v.shape[0]
     u = v @ C.T + u0
-    f, s, F, S = _arc_ratios(np.einsum("ij,ij->i", u, u), derivatives=True)
+    ratios = _arc_ratios(np.einsum("ij,ij->i", u, u), derivatives=wv is not None)
+    f, s = ratios[0], ratios[1]
     h = np.empty((n, 3))
     h[:, :2] = u * f[:, None]
     h[:, 2] = s
     Rh = h @ R.T
     tip = L * Rh
+    if wv is None:
+        return tip
+    F, S = ratios[2], ratios[3]
     # dh/du in the arc frame, (n, 3, 2)
     M = np.empty((n, 3, 2))
     Fu = F[:, None] * u
@@ -412,6 +473,7 @@ def _tip_and_jacobian_R(v, C, u0, L, R, wv):
     return tip, J
 
 
+@validate_params({"q": ["array-like"], "params": [PCCParams]}, prefer_skip_nested_validation=True)
 def pcc_tip(q, params):
     r"""Tip position of the PCC backbone (paper eqs. pcc-input and pcc).
 
@@ -423,7 +485,9 @@ def pcc_tip(q, params):
                    u_2 (1-\cos\alpha)/\alpha^2,\; \sin\alpha/\alpha]^T.
 
     The ratios take their continuous limits at ``alpha = 0`` (``1/2`` and
-    ``1``), so ``g = L R_g e_z`` there.
+    ``1``), so ``g = L R_g e_z`` there. Every row is evaluated by
+    :func:`pcc_kernel`, in a loop compiled by numba where it is available and
+    in Python otherwise.
 
     Parameters
     ----------
@@ -437,12 +501,11 @@ def pcc_tip(q, params):
     tip : ndarray of shape (n, 3)
         Tip positions in the base frame ``B`` (mm).
     """
-    params = _check_params(params)
     q = _check_q(q)
-    v = (q - params.q0) / params.S_m
-    return _tip(v, params.C, params.u0, params.L, params.R_g)
+    return evaluate_rows(_PCC_ROWS, params.pack(), q)
 
 
+@validate_params({"q": ["array-like"], "params": [PCCParams]}, prefer_skip_nested_validation=True)
 def pcc_jacobian(q, params):
     r"""Tip position and its analytic Jacobian with respect to the free parameters.
 
@@ -473,18 +536,18 @@ def pcc_jacobian(q, params):
     Returns
     -------
     tip : ndarray of shape (n, 3)
-        Tip positions in the base frame ``B`` (mm).
+        Tip positions in the base frame ``B`` (mm), as :func:`pcc_tip`.
     J : ndarray of shape (n, 3, 9)
         ``d tip / d theta`` with ``theta`` ordered as
         :data:`PCC_FREE_PARAMETERS` = ``(C11, C12, C21, C22, u0_1, u0_2, L,
         w1, w2)``; units mm per rad (``C``, ``u0``, ``w``) and mm/mm (``L``).
     """
-    params = _check_params(params)
     q = _check_q(q)
     v = (q - params.q0) / params.S_m
     w, _ = _roll_free_split(params.R_g)
     wv = np.array([w[0], w[1], 0.0])
-    return _tip_and_jacobian_R(v, params.C, params.u0, params.L, params.R_g, wv)
+    _, J = _tip_and_jacobian_R(v, params.C, params.u0, params.L, params.R_g, wv)
+    return evaluate_rows(_PCC_ROWS, params.pack(), q), J
 
 
 # ---------------------------------------------------------------------------
@@ -573,7 +636,22 @@ def _check_p(p, n):
     return arr
 
 
-def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_info=False):
+@validate_params(
+    {
+        "q": ["array-like"],
+        "p": ["array-like"],
+        "q0": ["array-like", None],
+        "S_m": [Interval(Real, 0, None, closed="neither"), None],
+        "init": [PCCParams, None],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "return_info": ["boolean"],
+        "solver": [callable, None],
+    },
+    prefer_skip_nested_validation=True,
+)
+def calibrate_pcc(
+    q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_info=False, solver=None
+):
     r"""Fit the PCC backbone to paired motor angles and tip positions.
 
     Minimises ``sum_i |g(q_i) - p_i|^2`` over the nine free parameters
@@ -604,6 +682,12 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
         Largest number of accepted Levenberg-Marquardt steps.
     return_info : bool
         Whether to return a dictionary of diagnostics as well.
+    solver : callable, default=None
+        The least-squares solver, called as
+        :func:`~skcath.backbones.levenberg_marquardt` is (same arguments,
+        an :class:`~skcath.backbones.LMResult` back); None means
+        :func:`~skcath.backbones.levenberg_marquardt`. Lets another solver
+        run on the same residuals, Jacobian and initial guess.
 
     Returns
     -------
@@ -623,10 +707,6 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
     """
     q = _check_q(q)
     p = _check_p(p, q.shape[0])
-    if init is not None and not isinstance(init, PCCParams):
-        raise TypeError(f"init must be a PCCParams or None; got {type(init).__qualname__}.")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be a positive integer; got {max_iter!r}.")
     keep = ~np.isnan(p).any(axis=1)
     n_used = int(keep.sum())
     if n_used < _MIN_ROWS:
@@ -655,9 +735,9 @@ def calibrate_pcc(q, p, *, q0=None, S_m=None, init=None, max_iter=100, return_in
             tip, J = _tip_and_jacobian(v, C, u0, L, w)
             return tip.ravel() - target, J.reshape(-1, 9)
         R = _so3_exp(np.array([w[0], w[1], 0.0]))
-        return _tip(v, C, u0, L, R).ravel() - target
+        return _tip_and_jacobian_R(v, C, u0, L, R).ravel() - target
 
-    result = levenberg_marquardt(residuals, x0, max_iter=max_iter)
+    result = (solver or levenberg_marquardt)(residuals, x0, max_iter=max_iter)
     params = _params_from_free(result.x, q0, S_m)
     if not return_info:
         return params

@@ -52,14 +52,18 @@ All lengths are in mm, motor angles and :math:`\\rho` in degrees, the other
 angles in radians.
 """
 
+import math
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 import numpy as np
+from sklearn.utils._param_validation import Interval, validate_params
 
+from .._kernel import bisect_right, evaluate_rows, kernel, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
 from ._lm import levenberg_marquardt
 
-__all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_tip"]
+__all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_kernel", "pdl_tip"]
 
 #: Names of the six per-ray coefficients, in the column order of ``PDLParams.coef``:
 #: ``a_g`` (rad/deg), ``b_g`` (rad/deg^2), ``a_d`` (mm/deg), ``b_d`` (mm/deg^2),
@@ -84,6 +88,14 @@ FTOL = 1e-8
 # Below this (relative to |p0|) the signed square root of the reconstruction
 # has its derivatives taken as 0, so that they stay finite.
 _SQRT_FLOOR = 1e-12
+
+# Layout of the packed vector of PDLParams.pack(), read by pdl_kernel: offsets
+# of the number of rays K, the neutral motor angles q_n (2, deg), the first
+# ray direction (rad), rho0 (deg), |p0| (mm), p0 (3, mm), the basis rows e1,
+# e2, n0 (9), then the blocks of the rays (see _ray_blocks).
+(PDL_N_RAYS, PDL_Q_NEUTRAL, PDL_FIRST, PDL_RHO0, PDL_BIG_P, PDL_P0, PDL_BASIS, PDL_RAYS) = offsets(
+    1, 2, 1, 1, 1, 3, 9
+)
 
 
 # ---------------------------------------------------------------------------
@@ -142,6 +154,44 @@ class PDLParams:
     def n_rays(self):
         """Number of rays ``K``."""
         return len(self.directions)
+
+    def pack(self):
+        """The parameters as the flat vector that :func:`pdl_kernel` reads.
+
+        The offsets ``phi0`` are unwrapped from ray to ray, and each ray's
+        upper neighbour is stored with its coefficients (the first ray's, with
+        ``phi0`` shifted by the winding, for the last ray), so that the
+        kernel interpolates between two stored rows.
+
+        Returns
+        -------
+        theta : ndarray
+            float64, laid out by the offsets ``PDL_*`` of this module and
+            :func:`_ray_blocks`: ``K``, ``q_neutral`` (deg), the first
+            direction (rad), ``rho0`` (deg), ``|p0|`` and ``p0`` (mm), the
+            basis rows, then per ray the direction relative to the first ray
+            (rad), the span to the next ray (rad), the coefficients and the
+            upper neighbour's coefficients.
+        """
+        n_rays = self.n_rays
+        coef = np.array(self.coef, copy=True)
+        coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0], wrap_first=False)
+        upper = coef[(np.arange(n_rays) + 1) % n_rays].copy()
+        upper[-1, _PHI0] += _winding(coef[:, _PHI0])
+        relative, span, lower_at, upper_at = _ray_blocks(n_rays)
+        theta = np.empty(upper_at + _N_COEF * n_rays)
+        theta[PDL_N_RAYS] = n_rays
+        theta[PDL_Q_NEUTRAL : PDL_Q_NEUTRAL + 2] = self.q_neutral
+        theta[PDL_FIRST] = self.directions[0]
+        theta[PDL_RHO0] = self.rho0
+        theta[PDL_BIG_P] = np.linalg.norm(self.p0)
+        theta[PDL_P0 : PDL_P0 + 3] = self.p0
+        theta[PDL_BASIS : PDL_BASIS + 9] = self.basis.ravel()
+        theta[relative : relative + n_rays] = self.directions - self.directions[0]
+        theta[span : span + n_rays] = np.diff(np.append(self.directions, self.directions[0] + _TWO_PI))
+        theta[lower_at:upper_at] = coef.ravel()
+        theta[upper_at:] = upper.ravel()
+        return theta
 
     def to_dict(self):
         """Flat dictionary of plain Python scalars (JSON-friendly).
@@ -262,53 +312,6 @@ def _unwrap_rays(phi0, *, wrap_first=True):
     """
     first = _wrap(phi0[0]) if wrap_first else phi0[0]
     return first + np.concatenate([[0.0], np.cumsum(_wrap(np.diff(phi0)))])
-
-
-def _ray_weights(psi, directions):
-    """Neighbouring rays and interpolation weight of each direction.
-
-    Parameters
-    ----------
-    psi : ndarray of shape (n,)
-        Motor-input directions (rad).
-    directions : ndarray of shape (K,)
-        Ray directions (rad), strictly increasing in ``[-pi, pi)``.
-
-    Returns
-    -------
-    lower : ndarray of shape (n,) of int
-        Ray at or before ``psi`` (periodically); the next ray is
-        ``(lower + 1) % K``.
-    weight : ndarray of shape (n,)
-        Weight of the next ray, in ``[0, 1]``: 0 on ray ``lower``, 1 on the next.
-    """
-    n_rays = len(directions)
-    span = np.diff(np.append(directions, directions[0] + _TWO_PI))
-    offset = np.mod(psi - directions[0], _TWO_PI)
-    lower = np.searchsorted(directions - directions[0], offset, side="right") - 1
-    lower = np.clip(lower, 0, n_rays - 1)
-    weight = np.clip((offset - (directions[lower] - directions[0])) / span[lower], 0.0, 1.0)
-    return lower, weight
-
-
-def _interpolate_coef(psi, directions, coef):
-    """Coefficients at each direction, linear between rays, periodic with unwrapped phi0.
-
-    Returns
-    -------
-    c : ndarray of shape (n, 6)
-        ``(1 - w) coef[j] + w coef[j + 1]``, where the wrap-around neighbour
-        of the last ray is the first ray with ``phi0`` shifted by the winding.
-    """
-    n_rays = len(directions)
-    coef = coef.copy()
-    coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0], wrap_first=False)  # no-op if already unwrapped
-    lower, weight = _ray_weights(psi, directions)
-    upper = (lower + 1) % n_rays
-    c_upper = coef[upper]
-    c_upper[:, _PHI0] += np.where(lower == n_rays - 1, _winding(coef[:, _PHI0]), 0.0)
-    w = weight[:, None]
-    return (1.0 - w) * coef[lower] + w * c_upper
 
 
 # ---------------------------------------------------------------------------
@@ -459,6 +462,94 @@ def _tip_from_coef(rho, c, p0, basis, rho0, jac=False):
     return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, rho, rho0), basis)
 
 
+@kernel
+def _ray_blocks(n_rays):
+    """Offsets in :meth:`PDLParams.pack` of the blocks of ``n_rays`` rays.
+
+    Returns
+    -------
+    relative, span, lower, upper : int
+        The ray directions relative to the first one (``n_rays``), the spans
+        to the next ray (``n_rays``), the coefficients of every ray, row by
+        row (``6 n_rays``), and those of its upper neighbour (``6 n_rays``).
+    """
+    span = PDL_RAYS + n_rays
+    lower = span + n_rays
+    return PDL_RAYS, span, lower, lower + _N_COEF * n_rays
+
+
+@kernel
+def pdl_section(gamma, dist, phi, big_p):
+    """Tip coordinates along the PDL basis from one ray's interpolated section.
+
+    The scalar form of :class:`_Reconstruction` (which the calibration
+    evaluates on many samples at once, with derivatives).
+
+    Parameters
+    ----------
+    gamma : float
+        Twice the inclination of the tip vector from ``n0`` (rad).
+    dist : float
+        Distance of the tip from the neutral tip (mm).
+    phi : float
+        Azimuth of the tip vector about ``n0`` (rad).
+    big_p : float
+        Distance of the neutral tip from the origin, ``|p0|`` (mm).
+
+    Returns
+    -------
+    c1, c2, c3 : float
+        Coordinates along ``e1``, ``e2``, ``n0`` (mm), before adding ``p0``.
+    """
+    h = 0.5 * gamma
+    ch, sh = math.cos(h), math.sin(h)
+    disc = dist * dist - (big_p * sh) ** 2
+    s = math.copysign(math.sqrt(abs(disc)), disc) if disc != 0.0 else 0.0
+    across = (big_p * ch + s) * sh
+    return across * math.cos(phi), across * math.sin(phi), s * ch - big_p * sh * sh
+
+
+@tip_kernel("PDLParams")
+def pdl_kernel(theta, q1, q2):
+    """Tip of the PDL backbone for one motor sample: the one scalar form of eq. 5.
+
+    Polar input about ``q_n``, the ray at or before its direction (binary
+    search), the coefficients interpolated linearly towards the next ray, the
+    responses ``gamma``, ``d``, ``phi``, and the section's geometry
+    (:func:`pdl_section`). Plain ``math`` on floats, compiled by numba where
+    it is available (see :mod:`skcath._kernel`); :func:`pdl_tip` runs it on
+    every row and the streaming estimator on every sample.
+    """
+    n = int(theta[PDL_N_RAYS])
+    relative, span, lower_at, upper_at = _ray_blocks(n)
+    v1 = q1 - theta[PDL_Q_NEUTRAL]
+    v2 = q2 - theta[PDL_Q_NEUTRAL + 1]
+    rho = math.hypot(v1, v2)
+    offset = (math.atan2(v2, v1) - theta[PDL_FIRST]) % _TWO_PI
+    k = bisect_right(theta, offset, relative, relative + n) - relative - 1
+    k = min(max(k, 0), n - 1)
+    w = (offset - theta[relative + k]) / theta[span + k]
+    w = min(max(w, 0.0), 1.0)
+    a = lower_at + _N_COEF * k
+    b = upper_at + _N_COEF * k
+    wl = 1.0 - w
+    gamma = rho * ((wl * theta[a] + w * theta[b]) + (wl * theta[a + 1] + w * theta[b + 1]) * rho)
+    dist = rho * ((wl * theta[a + 2] + w * theta[b + 2]) + (wl * theta[a + 3] + w * theta[b + 3]) * rho)
+    phi = (wl * theta[a + 4] + w * theta[b + 4]) + (wl * theta[a + 5] + w * theta[b + 5]) * (
+        rho - theta[PDL_RHO0]
+    )
+    c1, c2, c3 = pdl_section(gamma, dist, phi, theta[PDL_BIG_P])
+    p, B = PDL_P0, PDL_BASIS
+    return (
+        theta[p] + c1 * theta[B] + c2 * theta[B + 3] + c3 * theta[B + 6],
+        theta[p + 1] + c1 * theta[B + 1] + c2 * theta[B + 4] + c3 * theta[B + 7],
+        theta[p + 2] + c1 * theta[B + 2] + c2 * theta[B + 5] + c3 * theta[B + 8],
+    )
+
+
+_PDL_ROWS = row_loop(pdl_kernel)
+
+
 def _check_q(q):
     """Motor angles as a finite float array of shape (n, 2)."""
     q = np.asarray(q, dtype=float)
@@ -470,6 +561,7 @@ def _check_q(q):
     return q
 
 
+@validate_params({"q": ["array-like"], "params": [PDLParams]}, prefer_skip_nested_validation=True)
 def pdl_tip(q, params):
     """Nominal tip position of the per-direction linear backbone.
 
@@ -487,7 +579,9 @@ def pdl_tip(q, params):
     ``u = cos(gamma/2) n0 + sin(gamma/2) (cos(phi) e1 + sin(phi) e2)`` at
     distance ``d`` from the neutral tip ``p0`` (far root,
     ``r = P cos(gamma/2) + sgn(D) sqrt(|D|)``, ``D = d^2 - P^2 sin^2(gamma/2)``,
-    ``P = |p0|``). At ``q = q_n`` the tip is ``p0`` exactly.
+    ``P = |p0|``). At ``q = q_n`` the tip is ``p0`` exactly. Every row is
+    evaluated by :func:`pdl_kernel`, in a loop compiled by numba where it is
+    available and in Python otherwise.
 
     Parameters
     ----------
@@ -502,9 +596,7 @@ def pdl_tip(q, params):
         Tip positions in the base frame (mm).
     """
     q = _check_q(q)
-    rho, psi = _polar(q, params.q_neutral)
-    c = _interpolate_coef(psi, params.directions, params.coef)
-    return _tip_from_coef(rho, c, params.p0, params.basis, params.rho0)
+    return evaluate_rows(_PDL_ROWS, params.pack(), q)
 
 
 # ---------------------------------------------------------------------------
@@ -615,6 +707,21 @@ def _check_calibration_inputs(q, p, labels, directions, neutral):
     return q, p, labels, directions, neutral
 
 
+@validate_params(
+    {
+        "q": ["array-like"],
+        "p": ["array-like"],
+        "labels": ["array-like"],
+        "directions": ["array-like"],
+        "neutral": ["array-like"],
+        "q_neutral": ["array-like", None],
+        "rho0": [Real, None],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "return_info": ["boolean"],
+        "solver": [callable, None],
+    },
+    prefer_skip_nested_validation=True,
+)
 def calibrate_pdl(
     q,
     p,
@@ -626,6 +733,7 @@ def calibrate_pdl(
     rho0=None,
     max_iter=50,
     return_info=False,
+    solver=None,
 ):
     """Calibrate the per-direction linear backbone on a multidirectional sweep.
 
@@ -669,6 +777,10 @@ def calibrate_pdl(
         Largest number of Gauss-Newton steps per ray.
     return_info : bool
         Whether to also return a summary of the fit.
+    solver : callable, default=None
+        The least-squares solver of every ray, as for
+        :func:`~skcath.backbones.calibrate_pcc`; None means
+        :func:`~skcath.backbones.levenberg_marquardt`.
 
     Returns
     -------
@@ -720,7 +832,7 @@ def calibrate_pdl(
     for k, idx in enumerate(rows):
         c0 = _initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0)
         problem = _RayProblem(rho[idx], p[idx], p0, basis, rho0)
-        result = levenberg_marquardt(problem, c0, max_iter=max_iter, ftol=FTOL)
+        result = (solver or levenberg_marquardt)(problem, c0, max_iter=max_iter, ftol=FTOL)
         coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
     coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
     params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)

@@ -1,7 +1,8 @@
 """Streaming estimation and export: a fitted pipeline one motor sample at a time.
 
 :class:`OnlineEstimator` calibrates on one run's sweep and then estimates the
-tip from one motor sample per call, with numpy kernels on the step path;
+tip from one motor sample per call, one step function on the step path
+(compiled by numba where it is installed, else run with numpy);
 :func:`export` writes the residual's stepping network as ONNX or TorchScript;
 :class:`ShaftChangeDetector` raises an alarm when the shaft configuration has
 changed since the sweep, from the motor angles and torques alone.

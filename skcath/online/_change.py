@@ -14,7 +14,7 @@ from numbers import Integral, Real
 
 import numpy as np
 import pandas as pd
-from sklearn.base import BaseEstimator
+from sklearn.base import BaseEstimator, _fit_context
 from sklearn.exceptions import NotFittedError
 from sklearn.utils import Bunch
 from sklearn.utils._param_validation import Interval, StrOptions, validate_parameter_constraints
@@ -261,6 +261,7 @@ class ShaftChangeDetector(BaseEstimator):
             )
 
     # ------------------------------------------------------------------ API
+    @_fit_context(prefer_skip_nested_validation=True)
     def start(self, sweep):
         """Fit the torque model on a run's calibration sweep and reset the statistic.
 
@@ -279,8 +280,6 @@ class ShaftChangeDetector(BaseEstimator):
         self : ShaftChangeDetector
             Started detector, ready for ``step`` or ``detect``.
         """
-        params = {key: getattr(self, key) for key in self._parameter_constraints}
-        validate_parameter_constraints(self._parameter_constraints, params, caller_name=type(self).__name__)
         if not isinstance(sweep, pd.DataFrame):
             raise TypeError(f"sweep must be a pandas DataFrame; got {type(sweep).__name__}.")
         columns = [*fmt.MOTOR_COLUMNS, *fmt.TORQUE_COLUMNS]

@@ -4,9 +4,10 @@
 followed by a residual learner). ``start`` calibrates the backbone on one
 run's sweep and encodes the sweep context, exactly as ``Pipeline.predict``
 does for that run; ``step`` then estimates the tip from one motor sample at
-a time, carrying the recurrent state between calls, with numpy kernels
-(:mod:`skcath.online._fast`) or, when numba is installed, one compiled
-kernel per step (:mod:`skcath.online._jit`).
+a time, carrying the recurrent state between calls. The step
+(:func:`skcath.online._kernels.step`) runs as Python with numpy calls
+(:mod:`skcath.online._fast`) or, when numba is installed, compiled
+(:mod:`skcath.online._jit`).
 """
 
 from __future__ import annotations
@@ -14,26 +15,22 @@ from __future__ import annotations
 import copy
 import math
 from numbers import Real
-from types import SimpleNamespace
 
 import numpy as np
-import torch
-from sklearn.base import BaseEstimator
+from sklearn.base import BaseEstimator, _fit_context
 from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
-from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
+from sklearn.utils._param_validation import HasMethods, Interval, StrOptions, validate_params
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
 from .._runs import run_codes
 from .._validation import check_recordings
-from ..backbones import PCCParams, PDLParams
-from ..backbones._backbone import _BaseBackbone, _calibrate_run
+from ..backbones import PCCBackbone, PCCParams, PDLBackbone
 from ..frames import sweep_frame
-from ..residuals import GRUResidual, MLPResidual, NoResidual
-from ..residuals._features import sweep_feature_names
-from ..residuals._modules import GRUResidualModule, MLPResidualModule
-from ._fast import GRUStep, MLPStep, PCCStep, PDLStep, fold_input_layer, fold_output_layer
+from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
+from ._fast import BackboneStep, NumpyStep
+from ._weights import step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
 
@@ -62,7 +59,7 @@ def check_online_pipeline(pipeline):
             f"learner, got {type(pipeline).__name__}."
         )
     steps = [est for _, est in pipeline.steps if est is not None and est != "passthrough"]
-    if not 1 <= len(steps) <= 2 or not isinstance(steps[0], _BaseBackbone):
+    if not 1 <= len(steps) <= 2 or not isinstance(steps[0], (PCCBackbone, PDLBackbone)):
         names = [type(est).__name__ for est in steps]
         raise ValueError(
             "pipeline must hold a backbone (PCCBackbone or PDLBackbone), optionally "
@@ -115,6 +112,10 @@ def _check_sweep(sweep):
     return X, runs[0]
 
 
+@validate_params(
+    {"backbone": [PCCBackbone, PDLBackbone], "sweep": "no_validation"},
+    prefer_skip_nested_validation=True,
+)
 def calibrate_sweep(backbone, sweep):
     """Calibrate a backbone on the sweep rows of one run, as its ``predict`` does.
 
@@ -131,26 +132,22 @@ def calibrate_sweep(backbone, sweep):
         Calibrated parameters of the run.
     nominal : ndarray of shape (n_sweep, 3)
         Nominal tip of every sweep row (mm).
+
+    See Also
+    --------
+    skcath.backbones.PDLBackbone.calibrate : the calibrations of every run of recordings.
     """
     check_is_fitted(backbone)
     X, run = _check_sweep(sweep)
-    return _calibrate(backbone, X, run)
+    calibration = backbone.calibrate(X)
+    return calibration.params[run], calibration.nominal
 
 
-def _calibrate(backbone, X, run):
-    """:func:`calibrate_sweep` on checked sweep rows ``X`` of run ``run``."""
-    q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
-    ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy()
-    # the backbone's own per-run calibration, as in its predict
-    nominal, params, _ = _calibrate_run(backbone, run, q, ref, np.ones(len(X), dtype=bool))
-    return params, nominal
-
-
-def _jit_module(engine):
-    """The numba kernel module for ``engine``, or None for the numpy kernels."""
+def _step_class(engine):
+    """The step's class for ``engine``: the numba engine's where it applies, else the numpy one."""
     if engine == "numpy":
-        return None
-    try:
+        return NumpyStep
+    try:  # numba is optional: its engine is imported when it is asked for
         from . import _jit
     except ImportError as exc:
         if engine == "numba":
@@ -159,80 +156,13 @@ def _jit_module(engine):
                 f"({exc}); install it with pip install \"skcath[fast]\" (or pip install "
                 'numba), or use engine="numpy" or engine="auto".'
             ) from exc
-        return None
-    return _jit
+        return NumpyStep
+    return _jit.JitStep
 
 
 def _neutral_angles(params):
     """Neutral motor angles (deg) of a calibration."""
     return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
-
-
-def _numpy(t):
-    return t.detach().cpu().to(torch.float64).numpy()
-
-
-def _context(residual, X, dtype):
-    """Context ``z`` of the run, or None without context.
-
-    The encoder runs in torch (once per run), on a float64 copy of its
-    weights when ``dtype`` is float64 and in float32 otherwise.
-    """
-    if not residual.use_context:
-        return None
-    names = list(sweep_feature_names(residual.use_torque))
-    values = X[names].to_numpy(dtype=np.float64)[None]
-    sweep = SimpleNamespace(values=values, lengths=np.array([values.shape[1]]))
-    encoder = residual.module_.encoder
-    torch_dtype = torch.float64 if np.dtype(dtype) == np.float64 else torch.float32
-    if next(encoder.parameters()).dtype != torch_dtype:
-        encoder = copy.deepcopy(encoder).to(torch_dtype)
-    s, length = residual._context_input(sweep, np.dtype(dtype))
-    with torch.no_grad():
-        z = encoder(torch.from_numpy(s), torch.from_numpy(length))
-    return _numpy(z[0])
-
-
-def residual_kernel(residual, rotation, z, dtype):
-    """Numpy stepping kernel of a fitted residual learner for one run.
-
-    Parameters
-    ----------
-    residual : MLPResidual or GRUResidual
-        Fitted learner.
-    rotation : ndarray of shape (3, 3) or None
-        ``R_SB`` of the run (``frame="sweep"``), or None.
-    z : ndarray or None
-        Context of the run.
-    dtype : numpy dtype
-        Arithmetic precision of the kernel.
-
-    Returns
-    -------
-    kernel : GRUStep or MLPStep
-    """
-    module = residual.module_
-    scaler = residual.x_scaler_
-    if isinstance(module, GRUResidualModule):
-        gru = module.gru
-        layers = []
-        for k in range(gru.num_layers):
-            W_ih = _numpy(getattr(gru, f"weight_ih_l{k}"))
-            W_hh = _numpy(getattr(gru, f"weight_hh_l{k}"))
-            b_ih = _numpy(getattr(gru, f"bias_ih_l{k}"))
-            b_hh = _numpy(getattr(gru, f"bias_hh_l{k}"))
-            if k == 0:
-                W_ih, b_ih = fold_input_layer(W_ih, b_ih, scaler.mean, scaler.scale, rotation, z)
-            layers.append((W_ih, W_hh, b_ih, b_hh))
-        linears = [m for m in module.head if isinstance(m, torch.nn.Linear)]
-        head = [(_numpy(m.weight), _numpy(m.bias)) for m in linears]
-        head[-1] = fold_output_layer(*head[-1], residual.sigma_e_, rotation)
-        return GRUStep(layers, head, dtype)
-    linears = [m for m in module.mlp if isinstance(m, torch.nn.Linear)]
-    layers = [(_numpy(m.weight), _numpy(m.bias)) for m in linears]
-    layers[0] = fold_input_layer(*layers[0], scaler.mean, scaler.scale, rotation, z)
-    layers[-1] = fold_output_layer(*layers[-1], residual.sigma_e_, rotation)
-    return MLPStep(layers, dtype)
 
 
 class OnlineEstimator(BaseEstimator):
@@ -280,15 +210,16 @@ class OnlineEstimator(BaseEstimator):
         and stepped by :meth:`step` with the same (accepted) sample; its last
         answer is ``shaft_changed_``. The object passed is never changed.
     engine : {"auto", "numba", "numpy"}, default="auto"
-        What evaluates a step after the input checks. ``"numba"``: one
-        compiled kernel (backbone, network, clip; :mod:`skcath.online._jit`),
-        which needs the optional dependency numba (``pip install
-        "skcath[fast]"``); it is compiled once per machine and dtype (numba's
-        cache, several seconds) and loaded by :meth:`start`. ``"numpy"``:
-        numpy kernels, a dozen numpy calls per step, slower
-        (``docs/deploying.rst`` gives measured times). ``"auto"``: numba when
-        it can be imported, else numpy. Both engines give the same tips up to
-        rounding (see *Notes*).
+        What evaluates a step after the input checks: the one step function
+        (backbone, features, network, clip; :mod:`skcath.online._kernels`),
+        compiled or run as Python. ``"numba"``: compiled
+        (:mod:`skcath.online._jit`), which needs the optional dependency numba
+        (``pip install "skcath[fast]"``); it is compiled once per machine and
+        dtype (numba's cache, several seconds) and loaded by :meth:`start`.
+        ``"numpy"``: run as Python, its vector operations as numpy calls, a
+        dozen or so per step, slower (``docs/deploying.rst`` gives measured
+        times). ``"auto"``: numba when it can be imported, else numpy. Both
+        engines give the same tips up to rounding (see *Notes*).
 
     Attributes
     ----------
@@ -317,6 +248,9 @@ class OnlineEstimator(BaseEstimator):
         Nominal (backbone) tip of the last step (mm).
     engine_ : {"numba", "numpy"}
         The engine in use since :meth:`start`.
+    compile_seconds_ : float
+        Time :meth:`start` spent compiling the step, or loading it from
+        numba's cache (s); 0 on the numpy engine.
     detector_ : object
         The started copy of ``detector`` (only with a detector).
     shaft_changed_ : bool
@@ -339,10 +273,10 @@ class OnlineEstimator(BaseEstimator):
     takes its motor differences from the last sweep sample, as ``predict``
     does for the first motion row.
 
-    The two engines evaluate the same folded weights; they differ in the
-    order of the additions within a matrix-vector product and, with
-    ``dtype="float32"``, in the compiled kernel evaluating the gates' and the
-    head's nonlinearities in float64. In float64 both match the float64
+    The two engines run the same step on the same folded weights; they
+    differ in the order of the additions within a matrix-vector product and,
+    with ``dtype="float32"``, in the compiled step evaluating the gates' and
+    the head's nonlinearities in float64. In float64 both match the float64
     ``predict`` to 1e-9 mm; in float32 they agree to float32 rounding (the
     tests check 1e-5 mm).
 
@@ -386,22 +320,27 @@ class OnlineEstimator(BaseEstimator):
             Ready for :meth:`step`, with a zero recurrent state.
         """
         self._started = False  # until this start has succeeded
-        self._validate_params()
-        jit = _jit_module(self.engine)
+        return self._start(sweep)
+
+    @_fit_context(prefer_skip_nested_validation=True)
+    def _start(self, sweep):
+        """:meth:`start` once the parameters are validated."""
+        step_class = _step_class(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
         X, run = _check_sweep(sweep)
-        params, nominal = _calibrate(backbone, X, run)
+        calibration = backbone.calibrate(X)
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
         tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
         self.run_ = run
-        self.backbone_params_ = params
+        self.backbone_params_ = calibration.params[run]
         self.rotation_ = None
         self.context_ = None
         if residual is not None:
             if residual.frame == "sweep":
-                self.rotation_ = sweep_frame(q, nominal, run=run)
-            self.context_ = _context(residual, X, self.dtype)
-        self.q_neutral_ = _neutral_angles(params)
+                self.rotation_ = sweep_frame(q, calibration.nominal, run=run)
+            if residual.use_context:
+                self.context_ = residual.encode_context(X, dtype=self.dtype)[0]
+        self.q_neutral_ = _neutral_angles(self.backbone_params_)
         self.q_amplitude_ = float(np.hypot(*(q - self.q_neutral_).T).max())
         self.q_limit_ = (
             math.inf if self.q_margin is None else (1.0 + self.q_margin) * self.q_amplitude_
@@ -409,7 +348,7 @@ class OnlineEstimator(BaseEstimator):
         self._last_sweep = (float(q[-1, 0]), float(q[-1, 1]), float(tau[-1, 0]), float(tau[-1, 1]))
         self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
         self._limit2 = self.q_limit_ * self.q_limit_
-        self._build_kernels(residual, jit)
+        self._pack(residual, step_class)
         if self.detector is not None:
             # a copy: the parameter stays as given, and two estimators never share state
             self.detector_ = copy.deepcopy(self.detector).start(X)
@@ -417,56 +356,41 @@ class OnlineEstimator(BaseEstimator):
         self._started = True
         return self.reset()
 
-    def _build_kernels(self, residual, jit):
-        """The step's kernels from the calibration and the context of :meth:`start`.
+    def _pack(self, residual, step_class):
+        """The step's packed arrays from the calibration and the context of :meth:`start`.
 
-        ``residual`` is the pipeline's residual step (or None), ``jit`` the
-        numba kernel module (or None for the numpy kernels). Sets
-        ``nominal_`` (zero) and ``engine_``; the recurrent state is zero.
+        ``residual`` is the pipeline's residual step (or None), ``step_class``
+        the engine's (:class:`~skcath.online._fast.NumpyStep` or
+        :class:`~skcath.online._jit.JitStep`). Sets ``nominal_``,
+        ``engine_`` and ``compile_seconds_``; the recurrent state is zero.
         """
-        params = self.backbone_params_
-        if isinstance(params, PCCParams):
-            self._backbone = PCCStep(params)
-        elif isinstance(params, PDLParams):
-            self._backbone = PDLStep(params)
-        else:  # pragma: no cover - every backbone returns one of the two
-            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
-        self._kernel = None
-        self._clip = math.inf
-        self._use_torque = False
+        weights, clip, use_torque = None, math.inf, False
         if residual is not None:
-            self._kernel = residual_kernel(residual, self.rotation_, self.context_, self.dtype)
-            self._use_torque = residual.use_torque
+            weights = step_weights(residual, self.rotation_, self.context_)
+            use_torque = residual.use_torque
             if residual.clip is not None:
-                self._clip = float(residual.clip)
-        self.nominal_ = np.zeros(3)
-        self._jit = None
-        self.engine_ = "numpy"
-        if jit is not None:
-            kernel = jit.JitStep(self._backbone, self._kernel, self._clip, self._use_torque)
-            self._jit = (jit.step_kernel, kernel.meta, kernel.f, kernel.w, kernel.w32,
-                         kernel.buf, kernel)
-            self.nominal_ = kernel.nominal
-            self.engine_ = "numba"
-
-    def _hidden_states(self):
-        """The recurrent state arrays the step updates in place (empty without a GRU)."""
-        if self._jit is not None:
-            return self._jit[-1]._hidden
-        return getattr(self._kernel, "hidden", [])
+                clip = float(residual.clip)
+        backbone = BackboneStep(self.backbone_params_)
+        self._packed = step_class(backbone, weights, clip, use_torque, self.dtype)
+        self._call = self._packed.call
+        self._last = self._packed.last  # updated by every step
+        self.nominal_ = self._packed.nominal
+        self.engine_ = self._packed.engine
+        self.compile_seconds_ = self._packed.compile_seconds
 
     # ------------------------------------------------------------ pickling
-    # The kernels keep views into their buffers (the hidden state, the last
-    # sample, the nominal tip), which pickle would turn into detached copies.
-    # A pickle therefore holds the calibration and the running state, and
-    # loading rebuilds the kernels from the pipeline and restores the state.
-    _RUNTIME = ("_backbone", "_kernel", "_clip", "_use_torque", "_jit", "_last", "nominal_")
+    # The packed arrays are viewed by the estimator (the hidden state, the
+    # last sample, the nominal tip), which pickle would turn into detached
+    # copies. A pickle therefore holds the calibration and the running
+    # state, and loading packs the step again from the pipeline and restores
+    # the state.
+    _RUNTIME = ("_packed", "_call", "_last", "nominal_")
 
     def __getstate__(self):
         state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
         if self._started:
             state["_running"] = {
-                "hidden": [np.array(h) for h in self._hidden_states()],
+                "hidden": [np.array(h) for h in self._packed.hidden],
                 "last": [float(v) for v in self._last],
                 "nominal": np.array(self.nominal_),
             }
@@ -480,14 +404,10 @@ class OnlineEstimator(BaseEstimator):
             return
         # engine="auto" takes numba if it can be imported where the pickle is loaded
         _, residual = check_online_pipeline(self.pipeline)
-        self._build_kernels(residual, _jit_module(self.engine))
-        for h, saved in zip(self._hidden_states(), running["hidden"], strict=True):
+        self._pack(residual, _step_class(self.engine))
+        for h, saved in zip(self._packed.hidden, running["hidden"], strict=True):
             h[:] = saved
-        if self._jit is not None:
-            self._last = self._jit[-1].last
-            self._last[:] = running["last"]
-        else:
-            self._last = list(running["last"])
+        self._last[:] = running["last"]
         self.nominal_[:] = running["nominal"]
 
     def reset(self):
@@ -502,14 +422,7 @@ class OnlineEstimator(BaseEstimator):
         self : OnlineEstimator
         """
         self._check_started()
-        if self._jit is not None:
-            kernel = self._jit[-1]
-            kernel.reset(self._last_sweep)
-            self._last = kernel.last  # updated by the compiled step
-        else:
-            self._last = list(self._last_sweep)
-            if self._kernel is not None:
-                self._kernel.reset()
+        self._packed.reset(self._last_sweep)
         self.n_steps_ = 0
         self.n_held_ = 0
         return self
@@ -595,34 +508,8 @@ class OnlineEstimator(BaseEstimator):
                 "out must be a writeable float64 array of shape (3,); got "
                 f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
             )
-        if self._jit is not None:
-            kernel, meta, f, w, w32, buf, _ = self._jit
-            kernel(meta, f, w, w32, buf, out, q1, q2, tau1, tau2)
-            self.n_steps_ += 1
-            if self.detector is not None:
-                self.shaft_changed_ = bool(self.detector_.step(q1, q2, tau1, tau2))
-            return out
-        last = self._last
-        dq1, dq2 = q1 - last[0], q2 - last[1]
-        last[0], last[1], last[2], last[3] = q1, q2, tau1, tau2
-        bx, by, bz = self._backbone(q1, q2)
-        nominal = self.nominal_
-        nominal[0], nominal[1], nominal[2] = bx, by, bz
-        kernel = self._kernel
-        if kernel is None:
-            out[0], out[1], out[2] = bx, by, bz
-        else:
-            x = kernel.input
-            if self._use_torque:
-                x[:] = (q1, q2, dq1, dq2, tau1, tau2, bx, by, bz)
-            else:
-                x[:] = (q1, q2, dq1, dq2, bx, by, bz)
-            kernel()
-            e0, e1, e2 = kernel.output.tolist()
-            c = self._clip
-            out[0] = min(max(e0, -c), c) + bx
-            out[1] = min(max(e1, -c), c) + by
-            out[2] = min(max(e2, -c), c) + bz
+        function, meta, f, theta, w, w32, buf = self._call
+        function(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2)
         self.n_steps_ += 1
         if self.detector is not None:
             self.shaft_changed_ = bool(self.detector_.step(q1, q2, tau1, tau2))

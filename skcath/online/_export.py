@@ -18,7 +18,7 @@ import os
 import torch
 from torch import nn
 
-from ..residuals._modules import GRUResidualModule
+from ..residuals import GRUResidualModule
 from ._estimator import check_online_pipeline
 
 __all__ = ["export", "export_io"]
@@ -27,31 +27,18 @@ FORMATS = ("onnx", "torchscript")
 
 
 class _StepGraph(nn.Module):
-    """One step of a fitted residual learner on raw features (see :func:`export`)."""
+    """One step of a fitted residual learner on raw features (see :func:`export`).
+
+    The network's own ``step`` (:meth:`GRUResidualModule.step`,
+    :meth:`MLPResidualModule.step`) on a copy of the module in ``dtype``,
+    between the normalisation, the rotations, ``sigma_e`` and the clip.
+    """
 
     def __init__(self, residual, dtype):
         super().__init__()
-        module = residual.module_
-        self.recurrent = isinstance(module, GRUResidualModule)
+        self.module = copy.deepcopy(residual.module_)
         self.rotate = residual.frame == "sweep"
         self.use_context = residual.use_context
-        if self.recurrent:
-            gru = module.gru
-            cells = []
-            for k in range(gru.num_layers):
-                size = gru.input_size if k == 0 else gru.hidden_size
-                cell = nn.GRUCell(size, gru.hidden_size)
-                with torch.no_grad():
-                    cell.weight_ih.copy_(getattr(gru, f"weight_ih_l{k}"))
-                    cell.weight_hh.copy_(getattr(gru, f"weight_hh_l{k}"))
-                    cell.bias_ih.copy_(getattr(gru, f"bias_ih_l{k}"))
-                    cell.bias_hh.copy_(getattr(gru, f"bias_hh_l{k}"))
-                cells.append(cell)
-            self.cells = nn.ModuleList(cells)
-            self.net = copy.deepcopy(module.head)
-        else:
-            self.cells = nn.ModuleList()
-            self.net = copy.deepcopy(module.mlp)
         as_tensor = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
         self.register_buffer("mean", as_tensor(residual.x_scaler_.mean))
         self.register_buffer("scale", as_tensor(residual.x_scaler_.scale))
@@ -77,13 +64,8 @@ class _StepGraph(nn.Module):
         v = self._features(features, rotation)
         if self.use_context:
             v = torch.cat([v, context], dim=1)
-        if not self.recurrent:
-            return self._residual(self.net(v), rotation), hidden
-        states = []
-        for k, cell in enumerate(self.cells):
-            v = cell(v, hidden[k])
-            states.append(v)
-        return self._residual(self.net(v), rotation), torch.stack(states)
+        F, hidden = self.module.step(v, hidden)
+        return self._residual(F, rotation), hidden
 
 
 def _wrapper(graph, names):

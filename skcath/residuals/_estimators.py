@@ -586,6 +586,48 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             r = np.clip(r, -self.clip, self.clip)
         return np.where(np.isnan(r), 0.0, r)
 
+    def encode_context(self, X, dtype=None):
+        """Sweep context ``z`` of every run of ``X``, as the network computes it in ``predict``.
+
+        The sweep rows of each run are gathered (:func:`skcath.sequences.to_padded`,
+        in float64), pooled over blocks of ``sweep_stride`` samples and
+        normalised as in ``predict``, then encoded by the network's encoder.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format; only the sweep rows are read (the
+            backbone columns are not needed).
+        dtype : {None, "float32", "float64"}, default=None
+            Precision of the encoder: None for the network's own precision;
+            a copy of the encoder runs in the other one.
+
+        Returns
+        -------
+        z : ndarray of shape (n_runs, context_size)
+            Context of every run (float64), runs in order of first appearance.
+        """
+        if not self.initialized_ or not hasattr(self, "sigma_e_"):
+            raise NotFittedError(
+                f"This {type(self).__name__} instance is not fitted yet; call fit first."
+            )
+        if not self.use_context:
+            raise ValueError(
+                f"This {type(self).__name__} has use_context=False: it encodes no sweep context."
+            )
+        X, _ = check_recordings(X)
+        dtype = self._module_dtype() if dtype is None else np.dtype(dtype)
+        names = sweep_feature_names(self.use_torque)
+        sweep = to_padded(X, names, phase=fmt.SWEEP, dtype=np.float64)
+        encoder = self.module_.encoder
+        torch_dtype = torch.float64 if dtype == np.float64 else torch.float32
+        if next(encoder.parameters()).dtype != torch_dtype:
+            encoder = copy.deepcopy(encoder).to(torch_dtype)
+        values, lengths = self._context_input(sweep, dtype)
+        with torch.no_grad():
+            z = encoder(torch.from_numpy(values), torch.from_numpy(lengths))
+        return z.detach().cpu().to(torch.float64).numpy()
+
     def predict(self, X):
         """Tip position ``b + r`` (mm): the backbone's nominal tip plus the residual.
 

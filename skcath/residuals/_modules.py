@@ -92,6 +92,15 @@ class _ContextMixin(nn.Module):
         return torch.cat([features, z], dim=2)
 
 
+def _layer_cell(gru, k):
+    """A :class:`torch.nn.GRUCell` whose parameters are those of layer ``k`` of ``gru``."""
+    cell = nn.GRUCell(gru.input_size if k == 0 else gru.hidden_size, gru.hidden_size,
+                      device="meta")
+    for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh"):
+        setattr(cell, name, getattr(gru, f"{name}_l{k}"))
+    return cell
+
+
 class GRUResidualModule(_ContextMixin):
     """GRU residual core: ``h_t = GRU([x_t; z], h_{t-1})``, ``F_t = H(h_t)``.
 
@@ -162,6 +171,39 @@ class GRUResidualModule(_ContextMixin):
         h, _ = self.gru(v, hidden)
         return self.head(h)
 
+    def step(self, v, hidden=None):
+        """One time step: the normalised residual and the next hidden state.
+
+        The GRU layers are evaluated as :class:`torch.nn.GRUCell` steps whose
+        parameters are those of :attr:`gru` itself (the same tensors, not
+        copies; the cells are not submodules, so ``state_dict`` does not
+        change), which gives what :meth:`forward` gives at that step. A
+        traced step is written with elementary operations (no ONNX ``GRU``
+        node).
+
+        Parameters
+        ----------
+        v : Tensor of shape (batch, n_features + context_size)
+            Normalised step features ``x_bar`` followed by the context ``z``
+            (only ``x_bar`` without context), as the GRU reads them.
+        hidden : Tensor of shape (num_layers, batch, hidden_size), optional
+            Hidden state before the step; zeros (the start of a motion
+            sequence) if None.
+
+        Returns
+        -------
+        F : Tensor of shape (batch, 3)
+        hidden : Tensor of shape (num_layers, batch, hidden_size)
+        """
+        gru = self.gru
+        if hidden is None:
+            hidden = v.new_zeros((gru.num_layers, v.shape[0], gru.hidden_size))
+        states = []
+        for k in range(gru.num_layers):
+            v = _layer_cell(gru, k)(v, hidden[k])
+            states.append(v)
+        return self.head(v), torch.stack(states)
+
 
 class MLPResidualModule(_ContextMixin):
     """Per-step MLP residual core: ``F_t = MLP([x_t; z])`` (no recurrence).
@@ -207,6 +249,23 @@ class MLPResidualModule(_ContextMixin):
     def forward(self, features, sweep=None, sweep_length=None):
         """Normalised residual of every step, shape (batch, T, 3)."""
         return self.mlp(self._with_context(features, sweep, sweep_length))
+
+    def step(self, v, hidden=None):
+        """One time step: the normalised residual, and ``hidden`` passed through (no state).
+
+        Parameters
+        ----------
+        v : Tensor of shape (batch, n_features + context_size)
+            Normalised step features followed by the context ``z``.
+        hidden : None
+            The MLP has no state.
+
+        Returns
+        -------
+        F : Tensor of shape (batch, 3)
+        hidden : None
+        """
+        return self.mlp(v), hidden
 
 
 class MaskedNormalizedMSE(nn.Module):

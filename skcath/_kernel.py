@@ -1,0 +1,258 @@
+"""Scalar kernels that run as Python or compiled by numba, with numba optional.
+
+A kernel is a plain Python function on floats and flat arrays, written in
+the subset of Python that numba compiles (``math``, loops, indexing). The
+package writes each equation once as such a kernel; where numba can be
+imported, the batch evaluations and the streaming engine compile it,
+otherwise the same function runs as Python. numba is imported only when a
+compiled kernel is first needed, never when the package is imported.
+
+Two decorators declare what numba needs to know about a function that
+compiled code calls:
+
+* :func:`kernel`: numba compiles the function as it is;
+* :func:`compiled_as`: numba compiles another implementation in its place.
+  The Python function stays what Python runs (e.g. one numpy call on a
+  vector), the implementation is what compiled code runs (e.g. the loop that
+  the compiler vectorises); both compute the same thing.
+
+The declarations take effect when numba is loaded (:func:`load_numba`).
+
+numba's cache (``cache=True``) recognises a changed source by the file of
+the function it compiled, not by the files of the kernels that function
+calls: after editing a kernel, delete the cached ``*.nbi`` / ``*.nbc`` files
+under ``skcath`` (or set ``NUMBA_CACHE_DIR`` to an empty folder).
+"""
+
+from __future__ import annotations
+
+import bisect as _bisect
+import os
+import threading
+
+import numpy as np
+
+__all__ = [
+    "JIT_OPTIONS",
+    "bisect_right",
+    "compiled",
+    "compiled_as",
+    "evaluate_rows",
+    "kernel",
+    "load_numba",
+    "numba_enabled",
+    "offsets",
+    "row_loop",
+    "tip_kernel",
+]
+
+#: Options of every compiled kernel: no Python objects, the GIL released, and
+#: numpy's error model (no zero-division checks: a kernel's divisors are
+#: never zero, and a check would keep the compiler from vectorising loops).
+JIT_OPTIONS = {"nogil": True, "error_model": "numpy"}
+
+_lock = threading.RLock()
+_declared = []  # (function, compiled implementation), in order of declaration
+_state = {"numba": None, "registered": 0}
+_compiled = {}
+
+
+def kernel(func):
+    """Declare ``func`` a kernel that numba compiles as it is; returns ``func``."""
+    _declare(func, func)
+    return func
+
+
+def offsets(*sizes):
+    """Offsets of consecutive blocks of the given sizes in a flat array, then its size.
+
+    ``offsets(2, 1, 4)`` is ``(0, 2, 3, 7)``: the named layouts of the
+    packed arrays are written this way, block sizes in order.
+    """
+    at = [0]
+    for size in sizes:
+        at.append(at[-1] + size)
+    return tuple(at)
+
+
+_TIP_KERNEL_SECTIONS = """
+
+    Parameters
+    ----------
+    theta : ndarray or list of float
+        The packed parameters, :meth:`{params}.pack`.
+    q1, q2 : float
+        Motor angles (deg).
+
+    Returns
+    -------
+    x, y, z : float
+        Tip position in the base frame (mm).
+    """
+
+
+def tip_kernel(params_class):
+    """Declare a backbone's tip kernel ``(theta, q1, q2) -> (x, y, z)``, as :func:`kernel`.
+
+    Appends the sections common to the tip kernels to the docstring;
+    ``params_class`` names the parameter class whose ``pack`` gives ``theta``.
+    """
+
+    def declare(func):
+        func.__doc__ = func.__doc__.rstrip() + _TIP_KERNEL_SECTIONS.format(params=params_class)
+        return kernel(func)
+
+    return declare
+
+
+def compiled_as(implementation):
+    """Declare that compiled code runs ``implementation`` in place of the decorated function.
+
+    Parameters
+    ----------
+    implementation : callable
+        A function with the same arguments, in the subset of Python that
+        numba compiles.
+
+    Returns
+    -------
+    decorator : callable
+        Returns the decorated function unchanged (what Python runs).
+    """
+
+    def declare(func):
+        _declare(func, implementation)
+        return func
+
+    return declare
+
+
+def _declare(func, implementation):
+    with _lock:
+        _declared.append((func, implementation))
+        if _state["numba"] is not None:
+            _register_declared()
+
+
+def _register_declared():
+    """Register the declarations made since the last call with numba."""
+    from numba.extending import overload
+
+    for func, implementation in _declared[_state["registered"] :]:
+
+        def typer(*args, _implementation=implementation, **kwargs):
+            return _implementation
+
+        # a primitive's loops are inlined where they are called, as if written there
+        inline = "never" if implementation is func else "always"
+        overload(func, jit_options=JIT_OPTIONS, strict=False, inline=inline)(typer)
+    _state["registered"] = len(_declared)
+
+
+def numba_enabled():
+    """Whether numba can be imported and compiles (``NUMBA_DISABLE_JIT`` unset)."""
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return False
+    try:
+        load_numba()
+    except ImportError:
+        return False
+    return True
+
+
+def load_numba():
+    """numba, with every declared kernel registered.
+
+    Returns
+    -------
+    numba : module
+
+    Raises
+    ------
+    ImportError
+        Where numba cannot be imported.
+    """
+    with _lock:
+        if _state["numba"] is None:
+            import numba
+
+            _state["numba"] = numba
+        _register_declared()
+        return _state["numba"]
+
+
+def compiled(func):
+    """``func`` compiled by numba (cached on disk), or None where numba is not available.
+
+    Compiled once per process (loaded from numba's cache when a previous
+    process compiled it) and kept.
+    """
+    with _lock:
+        if func not in _compiled:
+            _compiled[func] = (
+                load_numba().njit(cache=True, **JIT_OPTIONS)(func) if numba_enabled() else None
+            )
+        return _compiled[func]
+
+
+def row_loop(tip):
+    """A loop evaluating the tip kernel ``tip(theta, q1, q2) -> (x, y, z)`` on every row.
+
+    The loop reads the motor angles from ``q1``, ``q2`` and writes the
+    coordinates into ``x``, ``y``, ``z``: arrays when compiled, lists when run
+    as Python (where list items are faster than array items).
+    """
+
+    def loop(theta, q1, q2, x, y, z):
+        for i in range(len(q1)):
+            x[i], y[i], z[i] = tip(theta, q1[i], q2[i])
+
+    loop.__doc__ = f"Rows of :func:`{tip.__name__}`."
+    return loop
+
+
+def evaluate_rows(loop, theta, q):
+    """Tips of every row of ``q`` by a :func:`row_loop`, compiled where numba is available.
+
+    Parameters
+    ----------
+    loop : callable
+        The result of :func:`row_loop`.
+    theta : ndarray of shape (n_theta,)
+        Packed parameters of the kernel (float64).
+    q : ndarray of shape (n, 2)
+        Motor angles (deg), float64.
+
+    Returns
+    -------
+    tips : ndarray of shape (n, 3)
+    """
+    n = q.shape[0]
+    fast = compiled(loop)
+    if fast is not None:
+        x, y, z = np.empty(n), np.empty(n), np.empty(n)
+        fast(theta, np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]), x, y, z)
+    else:
+        x, y, z = [0.0] * n, [0.0] * n, [0.0] * n
+        loop(theta.tolist(), q[:, 0].tolist(), q[:, 1].tolist(), x, y, z)
+    return np.column_stack([x, y, z])
+
+
+def _bisect_right_compiled(a, x, lo, hi):
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < a[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@compiled_as(_bisect_right_compiled)
+def bisect_right(a, x, lo, hi):
+    """Index where ``x`` would be inserted in the sorted ``a[lo:hi]``, after equal items.
+
+    As :func:`bisect.bisect_right`, which Python runs; compiled code runs the
+    same binary search as a loop.
+    """
+    return _bisect.bisect_right(a, x, lo, hi)

@@ -1,0 +1,435 @@
+"""The streaming step, written once for both engines.
+
+:func:`step` does a whole step of :meth:`~skcath.online.OnlineEstimator.step`
+after the input checks: the backbone's nominal tip for ``(q1, q2)`` (its tip
+kernel, :func:`~skcath.backbones.pcc_kernel` or
+:func:`~skcath.backbones.pdl_kernel`), the step features
+``[q1, q2, dq1, dq2, (tau1, tau2,) b_x, b_y, b_z]``, the residual network (GRU
+layers then the tanh head, or the MLP), the clip and the addition of the
+nominal tip. It reads the run's packed arrays by the names of
+:mod:`skcath.online._layout`.
+
+The numpy engine runs :func:`step` as Python; the numba engine compiles the
+same function (:mod:`skcath.online._jit`). They differ only in the few vector
+primitives the step calls, each declared with :func:`skcath._kernel.compiled_as`:
+Python runs one or a few numpy calls on the preallocated vectors (the fixed
+cost of a numpy call is what a step pays), compiled code runs loops that
+the compiler vectorises, allocate nothing, and evaluate the nonlinearities
+in float64 whatever the network's dtype, with an exponential of its own
+(:func:`_exp`, within 1e-15 relative of :func:`numpy.exp`). The GRU's gate
+equations, the feature assembly and the clip are written here only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import expit
+
+from .._kernel import compiled_as, kernel
+from ..backbones import PCCParams, PDLParams, pcc_kernel, pdl_kernel
+from ._layout import (
+    BACKBONE_PCC,
+    BACKBONE_PDL,
+    F_CLIP,
+    F_LAST,
+    F_NOMINAL,
+    F_SCRATCH,
+    GRU_CAND,
+    GRU_GATES,
+    GRU_N_IN,
+    GRU_RECORD,
+    GRU_VECTOR,
+    HEAD_DST,
+    HEAD_MATRIX,
+    HEAD_RECORD,
+    HEAD_SRC,
+    HEAD_TANH,
+    M_BACKBONE,
+    M_CAND,
+    M_GATES,
+    M_HEADER,
+    M_HIDDEN,
+    M_N_GRU,
+    M_N_HEAD,
+    M_N_SCRATCH,
+    M_RESIDUAL,
+    M_RESULT,
+    M_TMP,
+    M_USE_TORQUE,
+    M_X,
+    MAT_A_AT,
+    MAT_A_W32,
+    MAT_B_AT,
+    MAT_B_W32,
+    MAT_COLS,
+    MAT_ROWS,
+    MAT_SPLIT,
+    RESIDUAL_GRU,
+    RESIDUAL_NONE,
+)
+
+__all__ = ["BackboneStep", "step"]
+
+# exp: 1 / log(2), log(2) in two parts (the first ends in 21 zero bits, so that
+# k * _LN2_HI is exact for the |k| <= 1022 used here), Taylor coefficients 1 / j!
+_LOG2E = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+_EXP_TAYLOR = tuple(1.0 / math.factorial(j) for j in range(14))
+
+
+# ---------------------------------------------------------------------------
+# compiled loops
+# ---------------------------------------------------------------------------
+@kernel
+def _matvec(w, at, rows, cols, x, y, accumulate):
+    """``y (+)= M @ x`` for the column-major ``M`` (rows, cols) at ``w[at:]``.
+
+    Eight (then four, then one) columns per pass over ``y``, so that the
+    inner loop vectorises without the compiler reordering any sum. ``w`` may
+    be float32 while ``x`` and ``y`` are float64: the products are then
+    float64.
+    """
+    M = w[at : at + rows * cols].reshape((cols, rows))
+    if not accumulate:
+        y[:] = 0
+    j = 0
+    while j + 8 <= cols:
+        v0, v1, v2, v3 = x[j], x[j + 1], x[j + 2], x[j + 3]
+        v4, v5, v6, v7 = x[j + 4], x[j + 5], x[j + 6], x[j + 7]
+        for i in range(rows):
+            y[i] += (((M[j, i] * v0 + M[j + 1, i] * v1) + (M[j + 2, i] * v2 + M[j + 3, i] * v3))
+                     + ((M[j + 4, i] * v4 + M[j + 5, i] * v5)
+                        + (M[j + 6, i] * v6 + M[j + 7, i] * v7)))
+        j += 8
+    while j + 4 <= cols:
+        v0, v1, v2, v3 = x[j], x[j + 1], x[j + 2], x[j + 3]
+        for i in range(rows):
+            y[i] += (M[j, i] * v0 + M[j + 1, i] * v1) + (M[j + 2, i] * v2 + M[j + 3, i] * v3)
+        j += 4
+    while j < cols:
+        v0 = x[j]
+        for i in range(rows):
+            y[i] += M[j, i] * v0
+        j += 1
+
+
+@kernel
+def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate):
+    """:func:`_matvec` of a block stored in ``w32`` (``in_w32``) or ``w``."""
+    if in_w32:
+        _matvec(w32, at, rows, cols, x, y, accumulate)
+    else:
+        _matvec(w, at, rows, cols, x, y, accumulate)
+
+
+@kernel
+def _exp(x, bits):
+    """``x[:] = exp(x)`` (float64), in two loops that the compiler vectorises.
+
+    ``exp(t) = 2**k exp(r)`` with ``k = round(t / ln 2)`` and ``|r| <= ln(2) / 2``
+    (``ln 2`` split in two parts so that ``k ln 2`` is exact); ``exp(r)`` is its
+    Taylor polynomial of degree 13 (truncation below 1e-17 relative), ``2**k``
+    is built from its bits in ``bits`` (int64 scratch of the same length).
+    Arguments are clipped to [-708, 708], where ``exp`` stays normal and finite.
+    """
+    for i in range(x.shape[0]):
+        t = min(max(x[i], -708.0), 708.0)
+        k = math.floor(t * _LOG2E + 0.5)
+        r = (t - k * _LN2_HI) - k * _LN2_LO
+        c = _EXP_TAYLOR
+        x[i] = ((((((((((((c[13] * r + c[12]) * r + c[11]) * r + c[10]) * r + c[9]) * r
+                        + c[8]) * r + c[7]) * r + c[6]) * r + c[5]) * r + c[4]) * r + c[3]) * r
+                  + c[2]) * r + c[1]) * r + c[0]
+        bits[i] = (np.int64(k) + 1023) << 52
+    scale = bits.view(np.float64)
+    for i in range(x.shape[0]):
+        x[i] *= scale[i]
+
+
+@kernel
+def _tanh(y, bits):
+    """``y[:] = tanh(y)`` (float64) as ``1 - 2 / (exp(2 y) + 1)``: absolute error ~1e-16."""
+    for i in range(y.shape[0]):
+        y[i] = 2.0 * y[i]
+    _exp(y, bits)
+    for i in range(y.shape[0]):
+        y[i] = 1.0 - 2.0 / (y[i] + 1.0)
+
+
+def _scratch_compiled(meta, f):
+    n = meta[M_N_SCRATCH]
+    return f[F_SCRATCH : F_SCRATCH + n], f[F_SCRATCH + n : F_SCRATCH + 2 * n].view(np.int64)
+
+
+def _matvec_compiled(meta, r, w, w32, x, y):
+    rows, cols, split = meta[r + MAT_ROWS], meta[r + MAT_COLS], meta[r + MAT_SPLIT]
+    _block(meta[r + MAT_A_W32], meta[r + MAT_A_AT], w, w32, rows, split, x[:split], y, False)
+    if split < cols:
+        _block(meta[r + MAT_B_W32], meta[r + MAT_B_AT], w, w32, rows, cols - split, x[split:], y,
+               True)
+
+
+def _gru_vectors_sliced(meta, buf, rec):
+    H = meta[M_HIDDEN]
+    n_in = meta[rec + GRU_N_IN]
+    at = meta[rec + GRU_VECTOR]
+    v = buf[at : at + n_in + 1 + H]
+    g = buf[meta[M_GATES] : meta[M_GATES] + 3 * H]
+    return (v, v[:n_in], v[: n_in + 1], v[n_in + 1 :], g, g[: 2 * H], g[:H], g[H : 2 * H],
+            g[2 * H :], buf[meta[M_CAND] : meta[M_CAND] + H], buf[meta[M_TMP] : meta[M_TMP] + H])
+
+
+def _head_vectors_sliced(meta, buf, rec):
+    src, dst = meta[rec + HEAD_SRC], meta[rec + HEAD_DST]
+    return (buf[src : src + meta[rec + HEAD_MATRIX + MAT_COLS]],
+            buf[dst : dst + meta[rec + HEAD_MATRIX + MAT_ROWS]])
+
+
+def _gates_compiled(rz, r_pre, z_pre, t, bits):
+    n = rz.shape[0]
+    for i in range(n):
+        t[i] = -rz[i]
+    _exp(t[:n], bits[:n])
+    for i in range(n):
+        t[i] = 1.0 / (1.0 + t[i])
+    H = r_pre.shape[0]
+    return t[:H], t[H:n]
+
+
+def _tanh_of_sum_compiled(a, r, b, t, bits, at):
+    n = a.shape[0]
+    for i in range(n):
+        t[at + i] = a[i] + r[i] * b[i]
+    _tanh(t[at : at + n], bits[at : at + n])
+    return t[at : at + n]
+
+
+def _blend_compiled(h, z, n, tmp):
+    for i in range(h.shape[0]):
+        h[i] = n[i] + z[i] * (h[i] - n[i])
+
+
+def _tanh_inplace_compiled(y, t, bits):
+    n = y.shape[0]
+    for i in range(n):
+        t[i] = y[i]
+    _tanh(t[:n], bits[:n])
+    for i in range(n):
+        y[i] = t[i]
+
+
+# ---------------------------------------------------------------------------
+# vector primitives: numpy in Python, the loops above when compiled
+# ---------------------------------------------------------------------------
+@compiled_as(_scratch_compiled)
+def scratch(meta, f):
+    """The float64 and int64 scratch of the compiled nonlinearities (views of ``f``).
+
+    Python's nonlinearities need none: None, None.
+    """
+    return None, None
+
+
+@compiled_as(_matvec_compiled)
+def matvec(meta, r, w, w32, x, y):
+    """``y = M @ x`` for the matrix of record ``meta[r:]`` (``MAT_*``)."""
+    np.dot(w[meta[r + MAT_A_AT]], x, y)
+
+
+@compiled_as(_gru_vectors_sliced)
+def gru_vectors(meta, buf, rec):
+    """The vectors of the GRU layer of record ``meta[rec:]``, views of ``buf``.
+
+    ``v = [x; 1; h]``, ``x``, ``[x; 1]``, ``h``; the gates' pre-activations
+    ``g`` (3H), its parts for ``r`` and ``z`` together, for ``r``, for ``z``
+    and ``W_hn h + b_hn``; ``W_in x + b_in``; a scratch vector. Compiled
+    code slices them out of ``buf``; Python reads them from ``meta.views``,
+    sliced once by the numpy engine (:class:`~skcath.online._fast.NumpyStep`).
+    """
+    return meta.views[rec]
+
+
+@compiled_as(_head_vectors_sliced)
+def head_vectors(meta, buf, rec):
+    """The input ``[1; a]`` and the output of the head layer of record ``meta[rec:]``.
+
+    Views of ``buf``, sliced as :func:`gru_vectors` says.
+    """
+    return meta.views[rec]
+
+
+@compiled_as(_gates_compiled)
+def gates(rz, r_pre, z_pre, t, bits):
+    """The reset and update gates ``sigmoid(rz)``, ``rz`` holding both pre-activations.
+
+    Python evaluates them in place (``r_pre``, ``z_pre`` are the two halves of
+    ``rz``); compiled code into the float64 scratch ``t``. Returns the views
+    that hold ``r`` and ``z``.
+    """
+    expit(rz, rz)
+    return r_pre, z_pre
+
+
+@compiled_as(_tanh_of_sum_compiled)
+def tanh_of_sum(a, r, b, t, bits, at):
+    """``tanh(a + r * b)``: into ``a`` in Python (``b`` is overwritten), into ``t[at:]`` when compiled.
+
+    Returns the array that holds the result.
+    """
+    np.multiply(r, b, b)
+    np.add(a, b, a)
+    np.tanh(a, a)
+    return a
+
+
+@compiled_as(_blend_compiled)
+def blend(h, z, n, tmp):
+    """``h = n + z (h - n)`` in place; ``tmp`` is scratch of the size of ``h`` (Python only)."""
+    np.subtract(h, n, tmp)
+    np.multiply(z, tmp, tmp)
+    np.add(n, tmp, h)
+
+
+@compiled_as(_tanh_inplace_compiled)
+def tanh_inplace(y, t, bits):
+    """``y = tanh(y)`` (in float64 through the scratch ``t`` when compiled)."""
+    np.tanh(y, y)
+
+
+# ---------------------------------------------------------------------------
+# the step
+# ---------------------------------------------------------------------------
+@kernel
+def _gru(meta, f, w, w32, buf):
+    """All GRU layers, from the features in the first layer's ``[x; 1; h]``.
+
+    Per layer, as :class:`torch.nn.GRU` (gate order r, z, n):
+
+    .. math::
+
+        r = \\sigma(W_{ir} x + b_{ir} + W_{hr} h + b_{hr}),\\;
+        z = \\sigma(W_{iz} x + b_{iz} + W_{hz} h + b_{hz}),\\;
+        n = \\tanh(W_{in} x + b_{in} + r \\odot (W_{hn} h + b_{hn})),\\;
+        h' = n + z \\odot (h - n).
+
+    One product of the gates' matrix with ``[x; 1; h]`` gives the
+    pre-activations of ``r``, ``z`` and ``W_hn h + b_hn``, one of the
+    candidate's matrix with ``[x; 1]`` gives ``W_in x + b_in``.
+    """
+    H = meta[M_HIDDEN]
+    t, bits = scratch(meta, f)
+    below = buf
+    for k in range(meta[M_N_GRU]):
+        rec = M_HEADER + GRU_RECORD * k
+        v, x, x1, h, g, rz, r_pre, z_pre, hn, cand, tmp = gru_vectors(meta, buf, rec)
+        if k > 0:  # the input is the hidden state of the layer below
+            x[:] = below
+        matvec(meta, rec + GRU_GATES, w, w32, v, g)
+        matvec(meta, rec + GRU_CAND, w, w32, x1, cand)
+        r, z = gates(rz, r_pre, z_pre, t, bits)
+        n = tanh_of_sum(cand, r, hn, t, bits, 2 * H)
+        blend(h, z, n, tmp)
+        below = h
+
+
+@kernel
+def _head(meta, f, w, w32, buf):
+    """Dense tanh layers and the output layer, each on a vector ``[1; a]``."""
+    first = M_HEADER + GRU_RECORD * meta[M_N_GRU]
+    t, bits = scratch(meta, f)
+    for k in range(meta[M_N_HEAD]):
+        rec = first + HEAD_RECORD * k
+        x, y = head_vectors(meta, buf, rec)
+        matvec(meta, rec + HEAD_MATRIX, w, w32, x, y)
+        if meta[rec + HEAD_TANH]:
+            tanh_inplace(y, t, bits)
+
+
+def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
+    """One whole step: the tip (mm, base frame) for an accepted sample, into ``out``.
+
+    Parameters
+    ----------
+    meta, f, theta, w, w32, buf : arrays
+        The packed arrays of the run (:class:`~skcath.online._layout.PackedStep`).
+    out : ndarray of shape (3,), float64
+        Receives the tip (mm).
+    q1, q2 : float
+        Motor angles (deg), finite and in range.
+    tau1, tau2 : float
+        Drive torques, finite.
+    """
+    if meta[M_BACKBONE] == BACKBONE_PCC:
+        bx, by, bz = pcc_kernel(theta, q1, q2)
+    else:
+        bx, by, bz = pdl_kernel(theta, q1, q2)
+    f[F_NOMINAL] = bx
+    f[F_NOMINAL + 1] = by
+    f[F_NOMINAL + 2] = bz
+    dq1 = q1 - f[F_LAST]
+    dq2 = q2 - f[F_LAST + 1]
+    f[F_LAST] = q1
+    f[F_LAST + 1] = q2
+    f[F_LAST + 2] = tau1
+    f[F_LAST + 3] = tau2
+    kind = meta[M_RESIDUAL]
+    if kind == RESIDUAL_NONE:
+        out[0] = bx
+        out[1] = by
+        out[2] = bz
+        return
+    x = meta[M_X]
+    buf[x] = q1
+    buf[x + 1] = q2
+    buf[x + 2] = dq1
+    buf[x + 3] = dq2
+    if meta[M_USE_TORQUE]:
+        buf[x + 4] = tau1
+        buf[x + 5] = tau2
+        x += 2
+    buf[x + 4] = bx
+    buf[x + 5] = by
+    buf[x + 6] = bz
+    if kind == RESIDUAL_GRU:
+        _gru(meta, f, w, w32, buf)
+    _head(meta, f, w, w32, buf)
+    e = meta[M_RESULT]
+    c = float(f[F_CLIP])
+    out[0] = min(max(float(buf[e]), -c), c) + bx
+    out[1] = min(max(float(buf[e + 1]), -c), c) + by
+    out[2] = min(max(float(buf[e + 2]), -c), c) + bz
+
+
+class BackboneStep:
+    """A run's backbone in the step: its tip kernel and its calibration packed for it.
+
+    Parameters
+    ----------
+    params : PCCParams or PDLParams
+        Calibrated parameters of the run.
+
+    Attributes
+    ----------
+    code : int
+        ``meta[M_BACKBONE]`` of this backbone.
+    theta : ndarray
+        The packed parameters (``params.pack()``).
+    """
+
+    def __init__(self, params):
+        if isinstance(params, PCCParams):
+            self.code, self._kernel = BACKBONE_PCC, pcc_kernel
+        elif isinstance(params, PDLParams):
+            self.code, self._kernel = BACKBONE_PDL, pdl_kernel
+        else:
+            raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
+        self.params = params
+        self.theta = params.pack()
+        self._theta = self.theta.tolist()
+
+    def __call__(self, q1, q2):
+        """Tip ``(x, y, z)`` in the base frame (mm) for the motor angles (deg), as Python."""
+        return self._kernel(self._theta, q1, q2)

@@ -1,0 +1,275 @@
+"""Named layout of the arrays of one packed streaming step, and their packing.
+
+:func:`~skcath.online._kernels.step` reads everything it needs about a run
+from six arrays made once by :class:`PackedStep` when the run starts:
+
+* ``meta`` (int64): the header ``M_*`` (kinds, sizes, offsets into ``buf``),
+  then one record per GRU layer (``GRU_*``) and one per layer of the head
+  (``HEAD_*``), each holding matrix records (``MAT_*``);
+* ``f`` (float64): the nominal tip of the last step, the last accepted
+  sample ``(q1, q2, tau1, tau2)``, the clip, then float64 scratch for the
+  compiled nonlinearities (``F_*``);
+* ``theta`` (float64): the backbone's packed parameters
+  (:meth:`~skcath.backbones.PCCParams.pack`,
+  :meth:`~skcath.backbones.PDLParams.pack`);
+* ``w`` and ``w32``: the weight matrices (see :class:`FlatStore` and
+  :class:`MatrixStore`);
+* ``buf`` (the network's dtype): the per-layer vectors ``[x; 1; h]`` that
+  hold the GRU's hidden states, the gates, the head's vectors ``[1; a]``,
+  the residual (3,) and a scratch vector.
+
+Every offset the step reads is named here, once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._kernel import offsets
+
+__all__ = ["FlatStore", "MatrixStore", "PackedStep"]
+
+# kinds of backbone and residual (meta[M_BACKBONE], meta[M_RESIDUAL])
+BACKBONE_PCC, BACKBONE_PDL = 0, 1
+RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
+
+# meta header: the kinds, whether the features hold the torques, the offset in
+# buf of the raw step features, GRU layers and hidden size H, the offsets in
+# buf of the gates' pre-activations (3H), of W_in x + b_in (H) and of a scratch
+# vector (H), head layers, the offset in buf of the residual (3), the length n
+# of the float64 scratch of f (then n int64 of scratch)
+(M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
+ M_N_HEAD, M_RESULT, M_N_SCRATCH, M_HEADER) = offsets(1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1)
+
+# matrix record: rows, columns, columns of the first block, then for each of
+# the two column blocks whether it is stored in w32 and its offset (FlatStore)
+# or index (MatrixStore); a matrix with one block has split == columns
+(MAT_ROWS, MAT_COLS, MAT_SPLIT, MAT_A_W32, MAT_A_AT, MAT_B_W32, MAT_B_AT, MAT_RECORD) = offsets(
+    1, 1, 1, 1, 1, 1, 1
+)
+
+# GRU layer record: inputs n_in, offset in buf of [x; 1; h], the gates' matrix
+# (3H, n_in + 1 + H) on [x; 1; h], the candidate's matrix (H, n_in + 1) on [x; 1]
+GRU_N_IN, GRU_VECTOR, GRU_GATES, GRU_CAND, GRU_RECORD = offsets(1, 1, MAT_RECORD, MAT_RECORD)
+
+# head layer record: offset in buf of its input [1; a], of its output, whether
+# tanh follows, the matrix [b, W]
+HEAD_SRC, HEAD_DST, HEAD_TANH, HEAD_MATRIX, HEAD_RECORD = offsets(1, 1, 1, MAT_RECORD)
+
+# f: nominal tip of the last step (3), last accepted sample (4), clip (1), scratch
+F_NOMINAL, F_LAST, F_CLIP, F_SCRATCH = offsets(3, 4, 1)
+
+
+class _Arena:
+    """A flat array built piece by piece, handing out offsets."""
+
+    def __init__(self, dtype):
+        self.dtype = np.dtype(dtype)
+        self.parts, self.size = [], 0
+
+    def add(self, values):
+        """Append ``values`` (column-major when 2-D); their offset."""
+        at = self.size
+        values = np.asarray(values).ravel(order="F").astype(self.dtype)
+        self.parts.append(values)
+        self.size += values.size
+        return at
+
+    def array(self):
+        if not self.parts:
+            return np.zeros(1, dtype=self.dtype)
+        return np.concatenate(self.parts)
+
+
+class FlatStore:
+    """Matrices in two flat arrays, for the compiled step: ``w`` in the network's dtype, ``w32``.
+
+    A block goes to ``w32`` (float32) when float32 holds its values exactly
+    (weights the fitting left untouched, in float32): a float64 step then
+    reads half the bytes and still multiplies exactly these values in
+    float64. The blocks that absorbed the folded constants go to ``w``. A
+    matrix is stored in two column blocks when ``split`` is less than its
+    columns, so that the part that absorbed the constants does not keep the
+    rest out of ``w32``.
+    """
+
+    def __init__(self, dtype):
+        self.w, self.w32 = _Arena(dtype), _Arena(np.float32)
+
+    def _block(self, M):
+        if np.array_equal(M.astype(np.float32), M):
+            return [1, self.w32.add(M)]
+        return [0, self.w.add(M)]
+
+    def add(self, M, split):
+        """Store ``M``; its record from ``MAT_SPLIT`` on."""
+        M = np.asarray(M)
+        second = self._block(M[:, split:]) if split < M.shape[1] else [0, 0]
+        return [split, *self._block(M[:, :split]), *second]
+
+    def arrays(self):
+        """``w`` and ``w32``."""
+        return self.w.array(), self.w32.array()
+
+
+class MatrixStore:
+    """Matrices as a list of column-major arrays in the network's dtype, for the numpy step.
+
+    Each matrix is one block, multiplied by one call of :func:`numpy.dot`
+    (for these small shapes OpenBLAS ran faster on column-major arrays than
+    on row-major ones); the record's offset is the index in the list.
+    """
+
+    def __init__(self, dtype):
+        self.dtype = np.dtype(dtype)
+        self.matrices = []
+
+    def add(self, M, split):
+        """Store ``M`` whole; its record from ``MAT_SPLIT`` on."""
+        self.matrices.append(np.asfortranarray(M, dtype=self.dtype))
+        return [M.shape[1], 0, len(self.matrices) - 1, 0, 0]
+
+    def arrays(self):
+        """The list of matrices, and None for ``w32``."""
+        return self.matrices, None
+
+
+def _gru_matrices(W_ih, W_hh, b_ih, b_hh):
+    """The gates' matrix on ``[x; 1; h]`` and the candidate's on ``[x; 1]`` (PyTorch's gate order r, z, n).
+
+    The gates' matrix gives the pre-activations of ``r`` and ``z`` and
+    ``W_hn h + b_hn``; the candidate's gives ``W_in x + b_in``. No product
+    involves a block of zeros larger than ``H x n_in``.
+    """
+    H = W_hh.shape[1]
+    n_in = W_ih.shape[1]
+    M = np.zeros((3 * H, n_in + 1 + H))
+    M[: 2 * H, :n_in] = W_ih[: 2 * H]
+    M[: 2 * H, n_in] = b_ih[: 2 * H] + b_hh[: 2 * H]
+    M[: 2 * H, n_in + 1 :] = W_hh[: 2 * H]
+    M[2 * H :, n_in] = b_hh[2 * H :]
+    M[2 * H :, n_in + 1 :] = W_hh[2 * H :]
+    return M, np.column_stack([W_ih[2 * H :], b_ih[2 * H :]])
+
+
+class PackedStep:
+    """The arrays of one run's step, laid out as this module names them.
+
+    An engine's subclass sets ``engine`` (its name), ``store`` (:class:`FlatStore`
+    or :class:`MatrixStore`) and ``_bind``, which returns :attr:`call`.
+
+    Parameters
+    ----------
+    backbone : BackboneStep
+        The backbone of the run: its kind and its packed calibration.
+    weights : StepWeights or None
+        The residual's folded weights (:func:`~skcath.online._weights.step_weights`),
+        or None for the backbone alone.
+    clip : float
+        Bound of each residual coordinate (mm); inf for none.
+    use_torque : bool
+        Whether the step features hold the torques.
+    dtype : numpy dtype, default="float64"
+        Arithmetic precision of the network.
+
+    Attributes
+    ----------
+    meta, f, theta, w, w32, buf : arrays
+        As described in the module's docstring.
+    call : tuple
+        ``(function, meta, f, theta, w, w32, buf)`` in the engine's form: the
+        step is ``function(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2)``.
+    hidden : list of ndarray
+        The GRU layers' hidden states (views of ``buf``).
+    nominal : ndarray of shape (3,)
+        Nominal tip of the last step (mm); a view of ``f``.
+    last : ndarray of shape (4,)
+        Last accepted sample ``(q1, q2, tau1, tau2)``; a view of ``f``.
+    compile_seconds : float
+        Time taken to compile the step (s).
+    """
+
+    def __init__(self, backbone, weights, clip, use_torque, dtype="float64"):
+        self.dtype = np.dtype(np.float64 if weights is None else dtype)
+        store = self.store(self.dtype)
+        vectors = _Arena(self.dtype)
+        header = np.zeros(M_HEADER, dtype=np.int64)
+        header[M_BACKBONE] = backbone.code
+        header[M_RESIDUAL] = RESIDUAL_NONE
+        header[M_USE_TORQUE] = bool(use_torque)
+        gru, head, hidden, n_scratch = [], [], [], 1
+        if weights is not None:
+            gru, src, hidden = self._pack_gru(weights.gru, header, vectors, store)
+            if not gru:  # MLP: its input [1; x]
+                src = vectors.add(np.r_[1.0, np.zeros(weights.head[0][0].shape[1])])
+                header[M_X] = src + 1
+            head = self._pack_head(weights.head, src, header, vectors, store)
+            header[M_RESIDUAL] = RESIDUAL_GRU if gru else RESIDUAL_MLP
+            header[M_N_GRU] = len(gru) // GRU_RECORD
+            header[M_N_HEAD] = len(head) // HEAD_RECORD
+            n_scratch = max(3 * int(header[M_HIDDEN]), *(W.shape[0] for W, _ in weights.head))
+        header[M_N_SCRATCH] = n_scratch
+        self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
+        self.f = np.zeros(F_SCRATCH + 2 * n_scratch)
+        self.f[F_CLIP] = clip
+        self.theta = backbone.theta
+        self.w, self.w32 = store.arrays()
+        self.buf = vectors.array()
+        self.hidden = [self.buf[at : at + n] for at, n in hidden]
+        self.nominal = self.f[F_NOMINAL : F_NOMINAL + 3]
+        self.last = self.f[F_LAST : F_LAST + 4]
+        self.call = self._bind()
+
+    @staticmethod
+    def _matrix(M, split, store):
+        return [M.shape[0], M.shape[1], *store.add(M, split)]
+
+    def _pack_gru(self, layers, header, vectors, store):
+        """GRU records; the offset of the head's input ``[1; h]``; the hidden states' places."""
+        records, hidden, src = [], [], 0
+        for W_ih, W_hh, b_ih, b_hh in layers:
+            H, n_in = W_hh.shape[1], W_ih.shape[1]
+            gates, cand = _gru_matrices(W_ih, W_hh, b_ih, b_hh)
+            at = vectors.add(np.r_[np.zeros(n_in), 1.0, np.zeros(H)])  # [x; 1; h]
+            records += [n_in, at, *self._matrix(gates, n_in + 1, store),
+                        *self._matrix(cand, n_in + 1, store)]
+            hidden.append((at + n_in + 1, H))
+            src = at + n_in  # [1; h] of the last layer
+        if layers:
+            header[M_X] = records[GRU_VECTOR]
+            header[M_HIDDEN] = H
+            header[M_GATES] = vectors.add(np.zeros(3 * H))
+            header[M_CAND] = vectors.add(np.zeros(H))
+            header[M_TMP] = vectors.add(np.zeros(H))
+        return records, src, hidden
+
+    def _pack_head(self, layers, src, header, vectors, store):
+        """Head records, each layer on ``[1; a]``: tanh layers, then the output layer."""
+        records = []
+        for k, (W, b) in enumerate(layers):
+            M = np.column_stack([b, W])
+            rows, cols = M.shape
+            if k < len(layers) - 1:  # hidden layer: tanh, output [1; a]
+                dst = vectors.add(np.r_[1.0, np.zeros(rows)]) + 1
+                records += [src, dst, 1, *self._matrix(M, cols, store)]
+                src = dst - 1
+            else:
+                header[M_RESULT] = vectors.add(np.zeros(rows))
+                records += [src, header[M_RESULT], 0, *self._matrix(M, cols, store)]
+        return records
+
+    def __call__(self, q1, q2, tau1, tau2, out):
+        """Step with an accepted sample; the tip (mm) is written into ``out``.
+
+        ``call`` is ``(function, meta, f, theta, w, w32, buf)``, set by the
+        engine: the step is ``function(meta, f, theta, w, w32, buf, out, q1,
+        q2, tau1, tau2)``.
+        """
+        function, *arrays = self.call
+        function(*arrays, out, q1, q2, tau1, tau2)
+
+    def reset(self, last_sample):
+        """Zero hidden state; ``last_sample`` becomes the previous sample."""
+        for h in self.hidden:
+            h[:] = 0.0
+        self.last[:] = last_sample

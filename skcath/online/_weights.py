@@ -1,0 +1,137 @@
+"""Per-run weights of a fitted residual network, with the run's constants folded in.
+
+Everything that is constant within a run is folded into the first layer's
+weights: the feature normalisation ``(x - mean) / scale``, the rotation of
+the nominal tip into the sweep frame (``frame="sweep"``) and the context
+contribution ``W_z z`` (which becomes part of the bias). The output layer
+likewise absorbs ``sigma_e`` and the rotation back to the base frame, so the
+folded network reads the raw features ``[q1, q2, dq1, dq2, (tau1, tau2,) b_x,
+b_y, b_z]`` and returns the residual in the base frame (mm) before clipping.
+Both streaming engines pack these weights (:mod:`skcath.online._layout`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+from ..residuals import GRUResidualModule
+
+__all__ = ["StepWeights", "fold_input_layer", "fold_output_layer", "step_weights"]
+
+
+def fold_input_layer(W, b, mean, scale, rotation, z):
+    """First-layer weights on the raw step features, with constants folded in.
+
+    The layer computes ``W [x_bar; z] + b`` with the normalised features
+    ``x_bar = (x' - mean) / scale`` and ``x'`` the raw features whose last
+    three entries (the nominal tip) are rotated into the network's frame.
+
+    Parameters
+    ----------
+    W : ndarray of shape (m, n_features + n_context)
+        Weights on ``[x_bar; z]`` (float64).
+    b : ndarray of shape (m,)
+        Bias.
+    mean, scale : ndarray of shape (n_features,)
+        Normalisation statistics of the step features.
+    rotation : ndarray of shape (3, 3) or None
+        ``R_SB`` that rotates the nominal tip into the sweep frame, or None.
+    z : ndarray of shape (n_context,) or None
+        Context of the run, or None without context.
+
+    Returns
+    -------
+    W_raw : ndarray of shape (m, n_features)
+        Weights on the raw features ``[..., b_x, b_y, b_z]`` (base frame).
+    b_raw : ndarray of shape (m,)
+        Bias including ``-W mean / scale`` and ``W_z z``.
+    """
+    n = mean.shape[0]
+    Wx = W[:, :n] / scale[None, :]
+    b_raw = b - Wx @ mean
+    if z is not None:
+        b_raw = b_raw + W[:, n:] @ z
+    if rotation is not None:
+        Wx = Wx.copy()
+        Wx[:, n - 3 :] = Wx[:, n - 3 :] @ rotation
+    return Wx, b_raw
+
+
+def fold_output_layer(W, b, sigma_e, rotation):
+    """Output-layer weights that return the residual in the base frame (mm).
+
+    ``e = R^T (sigma_e * (W a + b))`` with ``R = R_SB`` (or the identity).
+
+    Returns
+    -------
+    W_out : ndarray of shape (3, m)
+    b_out : ndarray of shape (3,)
+    """
+    W = sigma_e[:, None] * W
+    b = sigma_e * b
+    if rotation is not None:
+        W = rotation.T @ W
+        b = rotation.T @ b
+    return W, b
+
+
+class StepWeights(NamedTuple):
+    """Folded float64 weights of one run's residual network.
+
+    Attributes
+    ----------
+    gru : list of (W_ih, W_hh, b_ih, b_hh)
+        The GRU layers in PyTorch's layout (gate order r, z, n), the first
+        layer's input weights and bias on the raw step features; empty for
+        the MLP.
+    head : list of (W, b)
+        The dense layers after the GRU (or the whole MLP): tanh layers, then
+        the output layer, which returns the residual in the base frame.
+    """
+
+    gru: list
+    head: list
+
+
+def _numpy(t):
+    return t.detach().cpu().to(torch.float64).numpy()
+
+
+def step_weights(residual, rotation, z):
+    """The folded weights of a fitted residual learner for one run.
+
+    Parameters
+    ----------
+    residual : MLPResidual or GRUResidual
+        Fitted learner.
+    rotation : ndarray of shape (3, 3) or None
+        ``R_SB`` of the run (``frame="sweep"``), or None.
+    z : ndarray or None
+        Context of the run.
+
+    Returns
+    -------
+    weights : StepWeights
+    """
+    module = residual.module_
+    scaler = residual.x_scaler_
+    gru = []
+    if isinstance(module, GRUResidualModule):
+        for k in range(module.gru.num_layers):
+            W_ih, W_hh, b_ih, b_hh = (
+                _numpy(getattr(module.gru, f"{name}_l{k}"))
+                for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
+            )
+            if k == 0:
+                W_ih, b_ih = fold_input_layer(W_ih, b_ih, scaler.mean, scaler.scale, rotation, z)
+            gru.append((W_ih, W_hh, b_ih, b_hh))
+        dense = module.head
+    else:
+        dense = module.mlp
+    head = [(_numpy(m.weight), _numpy(m.bias)) for m in dense if isinstance(m, torch.nn.Linear)]
+    if not gru:
+        head[0] = fold_input_layer(*head[0], scaler.mean, scaler.scale, rotation, z)
+    head[-1] = fold_output_layer(*head[-1], residual.sigma_e_, rotation)
+    return StepWeights(gru, head)
