@@ -34,9 +34,12 @@ __all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone"]
 BACKBONE_COLUMNS = ("b_x", "b_y", "b_z")
 
 
-# Docstring entries shared by both backbones, placed into their class
-# docstrings (f-strings) at the indentation of a parameter entry.
-_SWEEP_LAYOUT_PARAMS = """n_rays : int, default=8
+# The Parameters and Attributes sections shared by both backbones, placed
+# into their class docstrings (f-strings) at the indentation of a section
+# header, with the calibration's unit ("calibration" or "ray") formatted in.
+_PARAMETERS_AND_ATTRIBUTES = """Parameters
+    ----------
+    n_rays : int, default=8
         Number of rays of the initial sweep (at least 3); a sweep with
         another number of rays is rejected.
     ray_spacing_deg : float, default=None
@@ -45,11 +48,8 @@ _SWEEP_LAYOUT_PARAMS = """n_rays : int, default=8
         the full layout when the sweep keeps only some of its rays, e.g.
         ``n_rays=4, ray_spacing_deg=45`` for 4 of 8 rays
         (:func:`skcath.sweep.reduce_sweep`); see
-        :func:`skcath.sweep.find_rays`."""
-
-# the solver's parameters and the attributes, common to both backbones (the
-# calibration's unit, "calibration" or "ray", formatted in)
-_SOLVER_PARAMS_AND_ATTRIBUTES = """max_iter : int, default=100
+        :func:`skcath.sweep.find_rays`.
+    max_iter : int, default=100
         Largest number of Gauss-Newton steps per {}.
     n_jobs : int, default=None
         Runs calibrated in parallel (joblib); None means 1.
@@ -257,10 +257,7 @@ class PCCBackbone(_BaseBackbone):
     (:func:`calibrate_pcc`). The roll of ``R_g`` about its z axis is absorbed
     by ``C``.
 
-    Parameters
-    ----------
-    {_SWEEP_LAYOUT_PARAMS}
-    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("calibration")}
+    {_PARAMETERS_AND_ATTRIBUTES.format("calibration")}
 
     See Also
     --------
@@ -275,11 +272,11 @@ class PCCBackbone(_BaseBackbone):
 
     Examples
     --------
-    >>> from skcath.datasets import make_benchmark
     >>> from skcath.backbones import PCCBackbone
-    >>> from skcath.metrics import mean_per_run_rmse
+    >>> from skcath.datasets import make_benchmark
     >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
     >>> b = PCCBackbone().fit(data.X).predict(data.X)  # doctest: +SKIP
+    >>> from skcath.metrics import mean_per_run_rmse
     >>> mean_per_run_rmse(data.y, b, data.X)  # doctest: +SKIP
     """
 
@@ -313,10 +310,7 @@ class PDLBackbone(_BaseBackbone):
     coefficients are initialised by linear least squares and refined by
     damped Gauss-Newton on the 3-D residuals (:func:`calibrate_pdl`).
 
-    Parameters
-    ----------
-    {_SWEEP_LAYOUT_PARAMS}
-    {_SOLVER_PARAMS_AND_ATTRIBUTES.format("ray")}
+    {_PARAMETERS_AND_ATTRIBUTES.format("ray")}
 
     See Also
     --------
@@ -332,9 +326,9 @@ class PDLBackbone(_BaseBackbone):
     >>> from skcath.backbones import PDLBackbone
     >>> from skcath.datasets import make_benchmark
     >>> data = make_benchmark(n_catheters=1, n_runs=1)  # doctest: +SKIP
-    >>> Xt = PDLBackbone().fit_transform(data.X)  # doctest: +SKIP
-    >>> Xt[["b_x", "b_y", "b_z"]].shape  # doctest: +SKIP
-    >>> calibration = PDLBackbone().fit(data.X).calibrate(data.X)  # doctest: +SKIP
+    >>> pipe = Pipeline([("backbone", PDLBackbone())]).fit(data.X)  # doctest: +SKIP
+    >>> pipe.transform(data.X)[["b_x", "b_y", "b_z"]].shape  # doctest: +SKIP
+    >>> calibration = pipe["backbone"].calibrate(data.X)  # doctest: +SKIP
     >>> calibration.table[["rmse_mm", "n_iter", "converged"]]  # doctest: +SKIP
     """
 

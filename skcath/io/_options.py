@@ -17,7 +17,10 @@ Column names used here (the "skcath names"):
   (positions in mm, quaternions named by component).
 """
 
+from __future__ import annotations
+
 import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from types import MappingProxyType
 
@@ -335,18 +338,19 @@ class ReadingOptions:
         expected.
     """
 
-    columns: object = None
-    quat_order: object = None
-    catheter: object = None
-    setting: object = None
-    run: object = None
-    rate_hz: object = None
-    constants: object = None
-    scale: object = None
-    phase: object = None
-    n_sweep: object = None
-    valid: object = None
-    tip_offset: object = None
+    # the annotations are the normalised forms; the fields take what the readers take
+    columns: Mapping[str, str] | None = None
+    quat_order: str | None = None
+    catheter: str | int | None = None
+    setting: str | int | None = None
+    run: str | int | None = None
+    rate_hz: float | None = None
+    constants: Mapping[str, float] | None = None
+    scale: float | Mapping[str, float] | None = None
+    phase: str | None = None
+    n_sweep: int | None = None
+    valid: str | tuple[str, tuple] | None = None
+    tip_offset: tuple[float, float, float] | None = None
 
     def __post_init__(self):
         quat_order = None if self.quat_order is None else check_quat_order(self.quat_order)
