@@ -18,23 +18,33 @@ compiled code calls:
 
 The declarations take effect when numba is loaded (:func:`load_numba`).
 
-numba's cache (``cache=True``) recognises a changed source by the file of
-the function it compiled, not by the files of the kernels that function
-calls: after editing a kernel, delete the cached ``*.nbi`` / ``*.nbc`` files
-under ``skcath`` (or set ``NUMBA_CACHE_DIR`` to an empty folder).
+Compiled functions are cached on disk. numba's cache recognises a changed
+source by the file of the function it compiled, not by the files of the
+kernels that function calls, so a cache kept next to the sources could hand
+an upgraded or edited package the machine code of its old kernels. The
+cache therefore lives in a folder of its own per set of kernel sources
+(:func:`cache_folder`): under ``$NUMBA_CACHE_DIR`` when it is set, else
+under the user's cache folder (``$XDG_CACHE_HOME`` or ``~/.cache``), in
+``skcath-<version>/<digest of the kernels' source files>``.
 """
 
 from __future__ import annotations
 
 import bisect as _bisect
+import hashlib
+import inspect
 import os
 import threading
+from pathlib import Path
 
 import numpy as np
+
+from ._version import __version__
 
 __all__ = [
     "JIT_OPTIONS",
     "bisect_right",
+    "cache_folder",
     "compiled",
     "compiled_as",
     "evaluate_rows",
@@ -181,18 +191,66 @@ def load_numba():
         return _state["numba"]
 
 
+def _source_files(func):
+    """Source files of ``func`` and of every kernel declared so far, sorted."""
+    functions = [func, *(f for pair in _declared for f in pair)]
+    files = {inspect.getsourcefile(inspect.unwrap(f)) for f in functions}
+    return sorted(Path(f) for f in files if f)
+
+
+def cache_folder(func):
+    """Folder of numba's cache for ``func``: one per version and kernel sources.
+
+    Parameters
+    ----------
+    func : callable
+        A kernel, or a loop calling kernels.
+
+    Returns
+    -------
+    folder : pathlib.Path
+        ``<base>/skcath-<version>/<digest>``, where ``<base>`` is
+        ``$NUMBA_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/numba`` (default
+        ``~/.cache/numba``), and ``<digest>`` the first 16 hex digits of the
+        sha1 of the names and contents of :func:`_source_files`. An edited
+        kernel changes the digest, so stale machine code is never loaded.
+    """
+    digest = hashlib.sha1()
+    for path in _source_files(func):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"),
+        "numba",
+    )
+    return Path(base) / f"skcath-{__version__}" / digest.hexdigest()[:16]
+
+
 def compiled(func):
     """``func`` compiled by numba (cached on disk), or None where numba is not available.
 
-    Compiled once per process (loaded from numba's cache when a previous
-    process compiled it) and kept.
+    Compiled once per process (loaded from the cache, :func:`cache_folder`,
+    when a previous process compiled the same sources) and kept.
     """
     with _lock:
         if func not in _compiled:
-            _compiled[func] = (
-                load_numba().njit(cache=True, **JIT_OPTIONS)(func) if numba_enabled() else None
-            )
+            _compiled[func] = _compile(func) if numba_enabled() else None
         return _compiled[func]
+
+
+def _compile(func):
+    """numba's dispatcher of ``func``, its cache in :func:`cache_folder`.
+
+    numba reads its cache folder when the dispatcher is made, from
+    ``numba.config.CACHE_DIR``; it is set for that moment only.
+    """
+    numba = load_numba()
+    folder = cache_folder(func)
+    previous = numba.config.CACHE_DIR
+    numba.config.CACHE_DIR = str(folder)
+    try:
+        return numba.njit(cache=True, **JIT_OPTIONS)(func)
+    finally:
+        numba.config.CACHE_DIR = previous
 
 
 def row_loop(tip):

@@ -2,7 +2,6 @@
 error distribution, binned errors and the paired comparison of two methods."""
 
 import pickle
-import time
 
 import numpy as np
 import pandas as pd
@@ -608,12 +607,11 @@ def test_paired_reduction_interval_shrinks_with_more_clusters():
     assert 0.12 < ratio < 0.3
 
 
-def test_paired_reduction_is_reproducible_and_fast():
+def test_paired_reduction_is_reproducible():
+    # its speed (at most 1 s for these 204 runs) is measured by
+    # benchmarks/bench_functions.py, not here: the test machines are noisy
     baseline, candidate, clusters = _simulated_runs(68, 3, seed=1)  # 204 runs
-    start = time.perf_counter()
     first = paired_reduction(baseline, candidate, clusters, n_bootstrap=2000, random_state=42)
-    elapsed = time.perf_counter() - start
-    assert elapsed < 1.0
     again = paired_reduction(baseline, candidate, clusters, n_bootstrap=2000, random_state=42)
     assert dict(first) == dict(again)
     other = paired_reduction(baseline, candidate, clusters, n_bootstrap=2000, random_state=43)

@@ -1,6 +1,5 @@
 """Tests of skcath.sweep: rays of the calibration sweep from the motor angles."""
 
-import time
 
 import numpy as np
 import pytest
@@ -228,17 +227,14 @@ def test_simulated_runs():
         np.testing.assert_array_equal(ref, ref_before)
 
 
-def test_fast():
+def test_repeated_calls_give_the_same_rays():
+    # its speed (at most 5 ms per call on such a sweep) is measured by
+    # benchmarks/bench_functions.py, not here: the test machines are noisy
     q = make_sweep(noise=0.05)
     assert 4000 < len(q) < 4500
-    find_rays(q)
-    best = np.inf
-    for _ in range(5):
-        t0 = time.perf_counter()
-        for _ in range(10):
-            find_rays(q)
-        best = min(best, (time.perf_counter() - t0) / 10)
-    assert best < 5e-3
+    first, again = find_rays(q), find_rays(q)
+    np.testing.assert_array_equal(first.labels, again.labels)
+    np.testing.assert_array_equal(first.directions, again.directions)
 
 
 # ---------------------------------------------------------------------------

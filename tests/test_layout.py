@@ -1,0 +1,137 @@
+"""Checks of the package's layout: short functions, and benchmarks that use the public API.
+
+These read the source as text (with :mod:`ast`); nothing here imports the
+benchmark scripts.
+"""
+
+import ast
+import io
+import tokenize
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "skcath"
+BENCHMARKS = ROOT / "benchmarks"
+
+#: Longest function body allowed in the package, in lines of code (blank,
+#: comment and docstring lines not counted).
+MAX_FUNCTION_LINES = 80
+
+
+def _docstring_lines(tree):
+    lines = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if (body and isinstance(body[0], ast.Expr)
+                    and isinstance(body[0].value, ast.Constant)
+                    and isinstance(body[0].value.value, str)):
+                lines.update(range(body[0].lineno, body[0].end_lineno + 1))
+    return lines
+
+
+def _code_lines(source):
+    """Line numbers that hold code: no blank, comment-only or docstring line."""
+    skip = {tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT,
+            tokenize.DEDENT, tokenize.ENDMARKER}
+    lines = set()
+    for token in tokenize.generate_tokens(io.StringIO(source).readline):
+        if token.type not in skip:
+            lines.update(range(token.start[0], token.end[0] + 1))
+    return lines - _docstring_lines(ast.parse(source))
+
+
+def function_lengths(path):
+    """``(name, first line, lines of code)`` of every function in a file."""
+    source = path.read_text(encoding="utf-8")
+    code = _code_lines(source)
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            n = sum(1 for line in range(node.lineno, node.end_lineno + 1) if line in code)
+            yield node.name, node.lineno, n
+
+
+def test_line_counter_skips_docstrings_comments_and_blank_lines(tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text('def f(x):\n    """Doc.\n\n    More.\n    """\n    # note\n\n    y = (x +\n         1)\n    return y\n')
+    assert list(function_lengths(path)) == [("f", 1, 4)]
+
+
+def test_no_long_function_in_the_package():
+    long = [
+        f"{path.relative_to(ROOT)}:{line} {name} ({n} lines of code)"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for name, line, n in function_lengths(path)
+        if n > MAX_FUNCTION_LINES
+    ]
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines of code: {long}"
+
+
+def _private_imports(path):
+    """Imports of private skcath modules or names in one script."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "skcath":
+            parts = node.module.split(".")
+            names = [alias.name for alias in node.names]
+            if any(p.startswith("_") for p in parts) or any(n.startswith("_") for n in names):
+                found.append(f"{path.name}:{node.lineno} from {node.module} import {', '.join(names)}")
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                parts = alias.name.split(".")
+                if parts[0] == "skcath" and any(p.startswith("_") for p in parts):
+                    found.append(f"{path.name}:{node.lineno} import {alias.name}")
+    return found
+
+
+@pytest.mark.parametrize("path", sorted(BENCHMARKS.glob("*.py")), ids=lambda p: p.name)
+def test_benchmarks_import_only_public_names(path):
+    assert _private_imports(path) == []
+
+
+def test_public_names_of_benchmark_imports_are_exported():
+    import importlib
+
+    missing = []
+    for path in sorted(BENCHMARKS.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "skcath":
+                module = importlib.import_module(node.module)
+                exported = set(getattr(module, "__all__", ()))
+                for alias in node.names:
+                    if alias.name not in exported and not isinstance(
+                        getattr(module, alias.name, None), type(importlib)
+                    ):
+                        missing.append(f"{path.name}:{node.lineno} {node.module}.{alias.name}")
+    assert not missing, f"names not in their module's __all__: {missing}"
+
+
+def _loads_a_benchmark_script(path):
+    """Whether a test file loads a file of ``benchmarks/`` as a module or runs it."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            if name in {"spec_from_file_location", "run_path", "import_module"}:
+                strings = [c.value for c in ast.walk(node)
+                           if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+                if any("benchmarks" in s or s.startswith("bench_") for s in strings):
+                    return True
+    return False
+
+
+def test_tests_do_not_import_benchmark_scripts():
+    offenders = [path.name for path in sorted((ROOT / "tests").glob("*.py"))
+                 if _loads_a_benchmark_script(path)]
+    assert offenders == []
+
+
+def test_the_benchmark_loader_check_sees_a_loader(tmp_path):
+    path = tmp_path / "test_x.py"
+    path.write_text('import importlib.util\n'
+                    'spec = importlib.util.spec_from_file_location("b", "benchmarks/bench_x.py")\n')
+    assert _loads_a_benchmark_script(path)
