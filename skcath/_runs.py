@@ -35,7 +35,7 @@ from ._validation import (
     _check_frame,
     _check_time_order,
     _column_as_float,
-    _factorize_ids,
+    factorize_ids,
     check_target,
 )
 
@@ -78,7 +78,7 @@ def run_codes(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """
     _check_frame(X, caller="run_codes")
     _check_columns_present(X, (RUN,))
-    return _factorize_ids(X, RUN)
+    return factorize_ids(X, RUN)
 
 
 def group_positions(
@@ -376,7 +376,7 @@ def to_padded(
         raise ValueError(f"dtype must be a floating dtype, got {dtype}.")
     _check_columns_present(X, columns)
 
-    codes, runs = _factorize_ids(X, RUN)
+    codes, runs = factorize_ids(X, RUN)
     if TIME in X.columns:
         order, _ = group_positions(codes, len(runs))
         _check_time_order(X, _column_as_float(X, TIME), codes, runs, order)

@@ -42,6 +42,7 @@ __all__ = [
     "check_recordings",
     "check_target",
     "check_tip_offset",
+    "factorize_ids",
     "to_array",
 ]
 
@@ -270,7 +271,7 @@ def _factorize(X: pd.DataFrame, column: str, expected: str) -> tuple[np.ndarray,
     return np.asarray(codes, dtype=np.intp), np.asarray(uniques, dtype=object)
 
 
-def _factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
+def factorize_ids(X: pd.DataFrame, column: str) -> tuple[np.ndarray, np.ndarray]:
     """Integer codes (order of first appearance) and unique values of an id column.
 
     Raises
@@ -391,7 +392,7 @@ def _check_run_ids_unique(
     X: pd.DataFrame, codes: np.ndarray, runs: np.ndarray, column: str
 ) -> None:
     """Raise if a run id appears with more than one value of ``column``."""
-    other_codes, other_values = _factorize_ids(X, column)
+    other_codes, other_values = factorize_ids(X, column)
     # a run holds a single value exactly when its smallest and largest codes agree
     lowest = np.full(len(runs), len(other_values), dtype=np.intp)
     highest = np.full(len(runs), -1, dtype=np.intp)
@@ -826,7 +827,7 @@ def check_recordings(
     required = list(dict.fromkeys([*columns, RUN]))
     _check_columns_present(X, required)
 
-    codes, runs = _factorize_ids(X, RUN)
+    codes, runs = factorize_ids(X, RUN)
     for column in (CATHETER, SETTING):
         if column in required:
             _check_run_ids_unique(X, codes, runs, column)

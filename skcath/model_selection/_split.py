@@ -24,7 +24,7 @@ from sklearn.model_selection import BaseCrossValidator
 from sklearn.utils import check_random_state
 
 from .._format import CATHETER, RUN, SETTING
-from .._validation import _factorize_ids
+from .._validation import factorize_ids
 from ..exceptions import GroupsNotUsedWarning
 
 __all__ = ["LeaveOneCatheterOut", "LeaveOneSettingOut", "SettingGroupKFold", "exclusion_set"]
@@ -110,8 +110,8 @@ class _Layout:
         if len(X) == 0:
             raise ValueError(f"{caller} got an empty DataFrame X (0 rows).")
 
-        self.catheter, self.catheters = _factorize_ids(X, CATHETER)
-        setting_codes, setting_values = _factorize_ids(X, SETTING)
+        self.catheter, self.catheters = factorize_ids(X, CATHETER)
+        setting_codes, setting_values = factorize_ids(X, SETTING)
         # Settings are compared as strings, so 1 and "1" (or a categorical
         # and a plain column) name the same setting.
         labels = np.array([str(v) for v in setting_values], dtype=object)
@@ -129,7 +129,7 @@ class _Layout:
 
     def _check_runs(self, X):
         """Raise if a run id appears under more than one (catheter, setting) pair."""
-        run, runs = _factorize_ids(X, RUN)
+        run, runs = factorize_ids(X, RUN)
         first = np.full(len(runs), -1, dtype=np.intp)
         first[run[::-1]] = np.arange(len(run) - 1, -1, -1)
         differs = self.pair != self.pair[first[run]]
