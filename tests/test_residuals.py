@@ -1236,8 +1236,9 @@ def test_learner_trained_on_a_gpu(Est, small, fitted):
     cpu = copy.deepcopy(est)
     cpu.module_.to("cpu")
     cpu.device = "cpu"
-    assert_allclose(cpu.encode_context(Xb), z, rtol=0, atol=1e-5)
-    assert_allclose(cpu.predict(Xb), pred, rtol=0, atol=1e-3)
+    assert_array_equal(cpu.encode_context(Xb), z)
+    # the GPU's kernels may round as TF32 (1e-3 relative)
+    assert_allclose(cpu.predict(Xb), pred, rtol=0, atol=1e-2)
 
 
 @pytest.mark.parametrize("Est", LEARNERS)

@@ -855,7 +855,8 @@ _COMMON_PARAMS = """
         random initialisation (fine-tuning). Use
         ``sklearn.frozen.FrozenEstimator(fitted)`` inside ``cross_validate``
         or ``GridSearchCV``, whose ``clone`` drops the weights of a plain
-        fitted estimator.
+        fitted estimator. Its network must have the same size (the same
+        ``module__*`` arguments); one that differs is named in the error.
     validation_fraction : float or None, default=None
         Fraction of the training shaft settings (all repeats of a setting
         together) held out as validation data for early stopping; the best
@@ -874,8 +875,9 @@ _COMMON_PARAMS = """
         0 is silent; 1 prints skorch's epoch table and a progress bar.
     **kwargs
         Any other :class:`skorch.NeuralNetRegressor` parameter, e.g.
-        ``module__hidden_size``, ``device``, ``callbacks`` or
-        ``warm_start``. ``optimizer__weight_decay`` (L2 penalty of Adam)
+        ``module__hidden_size``, ``callbacks``, ``warm_start`` or ``device``
+        (``"cpu"``, ``"cuda"``: where the network trains and predicts,
+        checked by ``fit`` and ``predict`` before any work). ``optimizer__weight_decay`` (L2 penalty of Adam)
         defaults to 1e-4 and ``iterator_train__shuffle`` to True."""
 
 _COMMON_ATTRIBUTES = """
