@@ -327,6 +327,11 @@ def test_started_estimator_keeps_its_step_when_the_pipeline_is_refit(data, pipel
     pipe["backbone"].set_params(max_iter=50)
     with pytest.warns(PipelineChangedWarning):
         est.reset()
+    # so does a pipeline that can no longer be streamed; the estimator still steps
+    pipe.steps[1] = ("residual", GRUResidual())
+    with pytest.warns(PipelineChangedWarning):
+        est.reset()
+    assert_allclose(_stream(est, samples[:30]), refit, rtol=0, atol=0)
 
 
 @pytest.mark.parametrize("convert", [int, np.float32, np.float64, np.int64],

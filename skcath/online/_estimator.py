@@ -37,6 +37,7 @@ from ._weights import fitted_fingerprint, step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
 
+
 def check_online_pipeline(pipeline):
     """The backbone and the residual step (or None) of a fitted pipeline.
 
@@ -461,8 +462,11 @@ class OnlineEstimator(BaseEstimator):
         fingerprint = getattr(self, "_fingerprint", None)
         if fingerprint is None:  # pickled before fingerprints were kept
             return
-        backbone, residual = check_online_pipeline(self.pipeline)
-        if fitted_fingerprint(backbone, residual) != fingerprint:
+        try:
+            changed = fitted_fingerprint(*check_online_pipeline(self.pipeline)) != fingerprint
+        except (TypeError, ValueError, AttributeError):  # no longer a fitted pipeline
+            changed = True
+        if changed:
             warnings.warn(
                 f"This OnlineEstimator {event}, but its pipeline has been refit or its "
                 "parameters set since start(): the estimator steps the pipeline as it was "

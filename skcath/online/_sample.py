@@ -53,8 +53,8 @@ def as_real(value, name: str) -> float:
 
 def real_sample(q1, q2, tau1, tau2) -> tuple[float, float, float, float]:
     """The four channels of a sample as floats, checked with :func:`as_real`."""
-    # float and its subclasses (numpy.float64) are real numbers: the common case
-    if (isinstance(q1, float) and isinstance(q2, float)
-            and isinstance(tau1, float) and isinstance(tau2, float)):
+    # the usual types, without a call per channel
+    if (type(q1) in _REAL_TYPES and type(q2) in _REAL_TYPES
+            and type(tau1) in _REAL_TYPES and type(tau2) in _REAL_TYPES):
         return float(q1), float(q2), float(tau1), float(tau2)
     return (as_real(q1, "q1"), as_real(q2, "q2"), as_real(tau1, "tau1"), as_real(tau2, "tau2"))
