@@ -56,6 +56,7 @@ Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_residuals.py            # both parts
     .venv/bin/python benchmarks/bench_residuals.py --quick    # 2 epochs everywhere
+    .venv/bin/python benchmarks/bench_residuals.py --skip-throughput --device cuda  # part 2 on a GPU
 
 On an idle 2-core machine the default run takes about 5 minutes and
 ``--quick`` about 1 minute; with other processes on the machine, the 2-thread
@@ -341,13 +342,13 @@ def backbone_times(train, test, repeat):
     return statistics.median(fit_s), statistics.median(test_s), rmse
 
 
-def fold(train, test, models, threads, epochs, repeat):
+def fold(train, test, models, threads, epochs, repeat, device="cpu"):
     (X_tr, y_tr), (X_te, y_te) = train, test
     rows = []
     for r in range(repeat):
         for name in models:
             for n in threads:
-                params = {"random_state": SEED, "n_threads": n}
+                params = {"random_state": SEED, "n_threads": n, "device": device}
                 if epochs is not None:
                     params["max_epochs"] = epochs
                 pipe = Pipeline([("backbone", PDLBackbone(n_jobs=2)),
@@ -362,7 +363,7 @@ def fold(train, test, models, threads, epochs, repeat):
                 dur = [float(d) for d in res.history_[:, "dur"]]
                 rmse = per_run_rmse(y_te, pred, X_te)
                 rows.append({
-                    "model": MODELS[name].__name__, "threads": n, "repeat": r,
+                    "model": MODELS[name].__name__, "threads": n, "repeat": r, "device": device,
                     "epochs": len(dur), "fit_s": fit_s, "predict_s": predict_s,
                     "epoch_s": statistics.median(dur), "epochs_s": sum(dur),
                     "rmse": {str(k): float(v) for k, v in rmse.items()},
@@ -417,6 +418,8 @@ def main(argv=None):
                         help="also time the plain loop with a torch DataLoader over a TensorDataset")
     parser.add_argument("--skip-throughput", action="store_true", help="skip part 1")
     parser.add_argument("--skip-fold", action="store_true", help="skip part 2")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the learners in part 2, e.g. cuda (default: cpu)")
     parser.add_argument("--catheter", default="C1", help="catheter (default: C1)")
     parser.add_argument("--holdout", default="S01", help="held-out shaft setting (default: S01)")
     parser.add_argument("--json", metavar="PATH", help="also write the raw results to this JSON file")
@@ -448,7 +451,8 @@ def main(argv=None):
     if not args.skip_fold:
         print("part 2: one fold ...", file=sys.stderr, flush=True)
         bb_fit_s, bb_test_s, bb_rmse = backbone_times(train, test, 3)
-        fold_rows = fold(train, test, args.models, args.threads, args.epochs, args.fold_repeat)
+        fold_rows = fold(train, test, args.models, args.threads, args.epochs, args.fold_repeat,
+                         args.device)
     load_after = os.getloadavg()[0]
     wall = time.perf_counter() - wall
 
@@ -470,7 +474,8 @@ def main(argv=None):
         print()
         print(_throughput_table(tp_rows))
     if fold_rows:
-        print(f"\n### One fold (fit on {n_train} runs, predict {n_test} held-out runs)\n")
+        print(f"\n### One fold (fit on {n_train} runs, predict {n_test} held-out runs, "
+              f"device {args.device})\n")
         print(f"PDL calibration (median of 3): fit + transform of the {n_train} training runs "
               f"{bb_fit_s:.2f} s, predict of the {n_test} held-out runs {bb_test_s:.2f} s; "
               f"PDL alone, held-out RMSE per run "

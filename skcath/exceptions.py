@@ -9,6 +9,7 @@ __all__ = [
     "GroupsNotUsedWarning",
     "IncompatibleVersionError",
     "InconsistentVersionWarning",
+    "PipelineChangedWarning",
     "TruncatedFileWarning",
 ]
 
@@ -85,4 +86,19 @@ class GroupsNotUsedWarning(UserWarning):
     by the ``catheter`` and ``setting`` columns of ``X`` and do not use
     ``groups``. Leave ``groups`` out, or use a scikit-learn group splitter
     (``GroupKFold``, ``LeaveOneGroupOut``) to fold by other groups.
+    """
+
+
+class PipelineChangedWarning(UserWarning):
+    """The pipeline of a started :class:`~skcath.online.OnlineEstimator` has changed.
+
+    :meth:`~skcath.online.OnlineEstimator.start` takes what the step needs
+    from the fitted pipeline (the backbone's calibration on the sweep, the
+    sweep context, the residual network's weights) and keeps it: refitting
+    the pipeline in place, or setting its parameters, afterwards does not
+    change the started estimator, which goes on stepping the pipeline as it
+    was. Warned by :meth:`~skcath.online.OnlineEstimator.reset` and when a
+    started estimator is unpickled, if the pipeline it holds differs from the
+    one at ``start``. Call ``start(sweep)`` again to step the pipeline as it
+    is.
     """

@@ -12,14 +12,18 @@ import copy
 import json
 import logging
 import os
+import pickle
 import re
 import warnings
 import zipfile
+from decimal import Decimal
 
 import joblib
 import numpy as np
 import pandas as pd
 import pytest
+import torch
+from sklearn.frozen import FrozenEstimator
 from sklearn.model_selection import KFold, cross_val_score, cross_validate
 from sklearn.pipeline import Pipeline
 
@@ -27,10 +31,16 @@ from skcath import persist
 from skcath._validation import check_recordings
 from skcath.backbones import PDLBackbone
 from skcath.datasets import make_benchmark
-from skcath.exceptions import FileSuffixWarning, GroupsNotUsedWarning, TruncatedFileWarning
+from skcath.exceptions import (
+    FileSuffixWarning,
+    GroupsNotUsedWarning,
+    PipelineChangedWarning,
+    TruncatedFileWarning,
+)
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
 from skcath.model_selection import LeaveOneSettingOut
+from skcath.online import OnlineEstimator, ShaftChangeDetector
 from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
 from test_validation import make_recordings
@@ -1007,3 +1017,117 @@ def test_groups_given_to_a_package_splitter_warn(bench):
     with pytest.warns(GroupsNotUsedWarning, match=r"does not use: it groups the rows by the "
                       r"'catheter' and 'setting' columns of X"):
         list(LeaveOneSettingOut().split(X, groups=X["run"]))
+
+
+# ---------------------------------------------------------------------------
+# residual learners and the streaming estimator: sample weights, a refit
+# pipeline, step inputs, pretrained networks, methods not offered, devices
+# ---------------------------------------------------------------------------
+def _tiny_gru(**params):
+    return GRUResidual(**{"max_epochs": 1, "module__hidden_size": 8, "window_step": 200,
+                          "random_state": 0, "n_threads": 1, **params})
+
+
+@pytest.fixture(scope="module")
+def nominal(bench):
+    """The bench runs with the PDL backbone's nominal tip appended, and y."""
+    X, y = bench
+    return PDLBackbone().fit(X).transform(X), y
+
+
+@pytest.fixture(scope="module")
+def streaming(bench, nominal):
+    """A fitted PDL + tiny GRU pipeline, and the sweep and first motion samples of a run."""
+    X, y = bench
+    pipe = Pipeline([("backbone", PDLBackbone().fit(X)), ("residual", _tiny_gru())])
+    pipe.named_steps["residual"].fit(*nominal)
+    rows = X[X["run"] == X["run"].iloc[-1]]
+    motion = (rows["phase"] == "motion").to_numpy()
+    return pipe, rows[~motion], rows.loc[motion, ["q1", "q2", "tau1", "tau2"]].to_numpy()[:40]
+
+
+def test_zero_weighted_run_is_left_out_of_training(nominal):
+    """sample_weight reaches the loss: a run of weight 0 gives the model fitted without it."""
+    Xb, y = nominal
+    left_out = (Xb["run"] == Xb["run"].iloc[0]).to_numpy()
+    weight = np.where(left_out, 0.0, 1.0)
+    before = weight.copy()
+    zeroed = _tiny_gru().fit(Xb, y, sample_weight=weight)
+    without = _tiny_gru().fit(Xb[~left_out], y[~left_out], sample_weight=weight[~left_out])
+    np.testing.assert_array_equal(zeroed.predict(Xb), without.predict(Xb))
+    np.testing.assert_array_equal(weight, before)
+
+
+def test_refit_pipeline_does_not_change_a_started_estimator(nominal, streaming):
+    """Refit in place after start: the estimator and its pickle keep start's step, and warn."""
+    pipe, sweep, samples = streaming
+    pipe = copy.deepcopy(pipe)
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+    expected = np.array([est.step(*s) for s in samples])
+    pipe.named_steps["residual"].set_params(random_state=1).fit(*nominal)
+    with pytest.warns(PipelineChangedWarning, match=r"was unpickled, but its pipeline has been "
+                      r"refit or its parameters set since start\(\)(.|\n)*start\(sweep\) again"):
+        pickled = pickle.loads(pickle.dumps(est))
+    for started in (est, pickled):
+        with pytest.warns(PipelineChangedWarning, match="was reset, but its pipeline"):
+            started.reset()
+        np.testing.assert_array_equal(np.array([started.step(*s) for s in samples]), expected)
+
+
+@pytest.fixture(scope="module")
+def steppers(streaming):
+    """A started OnlineEstimator (backbone alone) and a started ShaftChangeDetector."""
+    pipe, sweep, _ = streaming
+    online = OnlineEstimator(Pipeline([("backbone", pipe.named_steps["backbone"])]),
+                             engine="numpy")
+    return online.start(sweep), ShaftChangeDetector().start(sweep)
+
+
+@pytest.mark.parametrize(
+    "value",
+    ["1.0", b"1.0", Decimal("1.0"), True, np.bool_(True), 1 + 0j, np.complex128(1.0)],
+    ids=["str", "bytes", "decimal", "bool", "numpy-bool", "complex", "numpy-complex"],
+)
+def test_streaming_steps_take_real_numbers_only(steppers, value):
+    """OnlineEstimator.step and ShaftChangeDetector.step refuse the same values, alike."""
+    messages = []
+    for stepper in steppers:
+        with pytest.raises(TypeError, match=r"step takes four numbers, q1, q2 \(deg\), tau1, "
+                           r"tau2: tau1 must be a real number \(int, float or a numpy real "
+                           r"scalar\), not ") as info:
+            stepper.step(0.0, 0.0, value, 0.0)
+        assert stepper.n_steps_ == 0
+        messages.append(str(info.value))
+    assert messages[0] == messages[1]
+
+
+def test_pretrained_of_another_size_names_the_sizes(nominal, streaming):
+    """Fine-tuning a network of another size names the module__* argument and both sizes."""
+    pretrained = FrozenEstimator(streaming[0].named_steps["residual"])
+    with pytest.raises(ValueError, match=r"pretrained has another network than this "
+                       r"GRUResidual: module__hidden_size=16 here, 8 in pretrained\. Give "
+                       r"this estimator the module and module__\* parameters"):
+        _tiny_gru(module__hidden_size=16, pretrained=pretrained).fit(*nominal)
+
+
+def test_predict_proba_and_forward_say_what_to_use(nominal, streaming):
+    """A regressor has no predict_proba; forward on recordings names predict instead."""
+    Xb, _ = nominal
+    residual = streaming[0].named_steps["residual"]
+    assert not hasattr(residual, "predict_proba")
+    with pytest.raises(AttributeError, match=r"GRUResidual has no predict_proba: it is a "
+                       r"regressor of tip positions\. Use predict"):
+        residual.predict_proba(Xb)
+    with pytest.raises(TypeError, match=r"the network's methods \(forward, forward_iter, "
+                       r"infer\) take the input those prepare from recordings, not DataFrame\. "
+                       r"Use GRUResidual\.predict for tip positions"):
+        residual.forward(Xb)
+
+
+def test_unavailable_device_is_refused_before_training(nominal):
+    """device='cuda' without a GPU: a ValueError naming the devices there are, up front."""
+    device = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+    with pytest.raises(ValueError, match=rf"GRUResidual has device='{device}', but torch "
+                       r"cannot compute there on this machine; the devices available are "
+                       r"\['cpu'"):
+        _tiny_gru(device=device).fit(*nominal)

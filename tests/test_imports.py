@@ -229,9 +229,10 @@ def test_exceptions_are_the_same_classes_everywhere():
 
     assert set(exceptions.__all__) == {
         "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
-        "IncompatibleVersionError", "TruncatedFileWarning",
+        "IncompatibleVersionError", "PipelineChangedWarning", "TruncatedFileWarning",
     }
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
+    assert issubclass(exceptions.PipelineChangedWarning, UserWarning)
     assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)
     assert persist.InconsistentVersionWarning is exceptions.InconsistentVersionWarning
     assert persist.IncompatibleVersionError is exceptions.IncompatibleVersionError

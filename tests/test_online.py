@@ -15,10 +15,12 @@ import copy
 import os
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from numpy.testing import assert_allclose
 from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
@@ -26,7 +28,8 @@ from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
 from skcath.datasets import make_benchmark
-from skcath.online import OnlineEstimator, calibrate_sweep
+from skcath.exceptions import PipelineChangedWarning
+from skcath.online import OnlineEstimator, calibrate_sweep, export
 from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
@@ -293,6 +296,73 @@ def test_start_leaves_inputs_unchanged(data, pipelines):
     pd.testing.assert_frame_equal(sweep, sweep_before)
     for k, v in pipe["residual"].module_.state_dict().items():
         assert v.dtype == state[k].dtype and bool((v == state[k]).all())
+
+
+def test_started_estimator_keeps_its_step_when_the_pipeline_is_refit(data, pipelines,
+                                                                    transformed):
+    """start takes the step from the pipeline; a refit in place changes it only at start."""
+    _, y, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = copy.deepcopy(pipelines(PDLBackbone, "gru"))
+    est = OnlineEstimator(pipe).start(sweep)
+    before = _stream(est, samples[:30])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        est.reset()  # nothing changed: no warning
+        pipe.set_params(residual__verbose=0)  # not read by the step
+        est.reset()
+    pipe["residual"].set_params(random_state=1).fit(transformed[PDLBackbone][1], y)
+    refit = _stream(OnlineEstimator(pipe).start(sweep), samples[:30])
+    assert np.abs(refit - before).max() > 1e-3
+    with pytest.warns(PipelineChangedWarning, match=r"was reset, but its pipeline has been "
+                      r"refit or its parameters set since start\(\)(.|\n)*start\(sweep\) again"):
+        est.reset()
+    assert_allclose(_stream(est, samples[:30]), before, rtol=0, atol=0)
+    # started again, it steps the refit pipeline, without a warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert_allclose(_stream(est.start(sweep), samples[:30]), refit, rtol=0, atol=0)
+        est.reset()
+    # the backbone's parameters count too
+    pipe["backbone"].set_params(max_iter=50)
+    with pytest.warns(PipelineChangedWarning):
+        est.reset()
+    # so does a pipeline that can no longer be streamed; the estimator still steps
+    pipe.steps[1] = ("residual", GRUResidual())
+    with pytest.warns(PipelineChangedWarning):
+        est.reset()
+    assert_allclose(_stream(est, samples[:30]), refit, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("convert", [int, np.float32, np.float64, np.int64],
+                         ids=["int", "float32", "float64", "int64"])
+def test_step_takes_integers_and_numpy_scalars(data, pipelines, convert):
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    est = OnlineEstimator(pipelines(PDLBackbone, "mlp")).start(sweep)
+    rounded = np.round(samples[:5]).astype(float)
+    expected = _stream(OnlineEstimator(pipelines(PDLBackbone, "mlp")).start(sweep), rounded)
+    tips = np.array([est.step(*(convert(v) for v in s)) for s in rounded])
+    assert_allclose(tips, expected, rtol=0, atol=0)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("kind", ["gru", "mlp"])
+def test_learner_trained_on_a_gpu_streams_and_exports_on_the_cpu(data, transformed, kind,
+                                                                  tmp_path):
+    X, y, X_run = data
+    sweep, samples, motion = _split(X_run)
+    backbone, Xb = transformed[PDLBackbone]
+    Est = {"mlp": MLPResidual, "gru": GRUResidual}[kind]
+    residual = _tiny(Est, device="cuda").fit(Xb, y)
+    pipe = Pipeline([("backbone", backbone), ("residual", residual)])
+    expected = pipe.predict(X_run)[motion]
+    est = OnlineEstimator(pipe).start(sweep)
+    # predict runs on the GPU, whose kernels may round as TF32 (1e-3 relative)
+    assert_allclose(_stream(est, samples), expected, rtol=0, atol=1e-2)
+    assert next(residual.module_.parameters()).device.type == "cuda"
+    export(pipe, tmp_path / "step.pt", format="torchscript")
+    assert next(torch.jit.load(tmp_path / "step.pt").parameters()).device.type == "cpu"
 
 
 # ---------------------------------------------------------------------------

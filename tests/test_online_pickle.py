@@ -5,12 +5,15 @@ nominal tip as views into the kernels' buffers. A pickle must carry that
 state: the loaded copy steps on exactly as the original would, ``reset``
 of the copy resets the state the kernel uses, and ``nominal_`` keeps
 following the steps. Checked on both engines, for the GRU (one and two
-layers), the MLP and the backbone alone.
+layers), the MLP and the backbone alone. A pickle holds the step ``start``
+took from the pipeline: pickled after the pipeline was refit, the copy
+steps as the original does (and warns that the pipeline changed).
 
 The fixtures and helpers (tiny networks, one epoch on two shortened runs)
 are those of ``test_online.py``.
 """
 
+import copy
 import importlib.util
 import pickle
 
@@ -19,6 +22,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from skcath.backbones import PCCBackbone, PDLBackbone
+from skcath.exceptions import PipelineChangedWarning
 from skcath.online import OnlineEstimator
 from test_online import (  # noqa: F401  (fixtures)
     _split,
@@ -93,3 +97,20 @@ def test_pickled_unstarted_estimator(data, pipelines, engine):
         clone.step(*samples[0])
     expected = _stream(OnlineEstimator(pipe, engine=engine).start(sweep), samples[:10])
     assert_allclose(_stream(clone.start(sweep), samples[:10]), expected, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_pickle_after_a_refit_keeps_the_step_of_start(data, pipelines, transformed, engine):
+    """A pickle holds the step start took: the refit pipeline's weights do not mix in."""
+    _, y, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = copy.deepcopy(pipelines(PDLBackbone, "mlp"))
+    est = OnlineEstimator(pipe, engine=engine).start(sweep)
+    _stream(est, samples[:20])
+    pipe["residual"].set_params(random_state=1).fit(transformed[PDLBackbone][1], y)
+    with pytest.warns(PipelineChangedWarning, match="was unpickled, but its pipeline"):
+        clone = pickle.loads(pickle.dumps(est))
+    assert_allclose(_stream(clone, samples[20:60]), _stream(est, samples[20:60]), rtol=0, atol=0)
+    # the pickle carries the refit pipeline: started again, the copy steps it
+    refit = _stream(OnlineEstimator(pipe, engine=engine).start(sweep), samples[:10])
+    assert_allclose(_stream(clone.start(sweep), samples[:10]), refit, rtol=0, atol=0)

@@ -15,6 +15,7 @@ nothing here depends on a trained model's accuracy, except
 ``test_gru_beats_its_backbone_on_held_out_settings``.
 """
 
+import copy
 import io
 import pickle
 
@@ -49,6 +50,7 @@ from skcath.residuals import (
 )
 from skcath.residuals import _estimators
 from skcath.residuals._features import cut_windows, feature_frame, pool_sweep
+from skcath.residuals._modules import on_cpu
 
 from _helpers import tiny_residual
 
@@ -1096,6 +1098,162 @@ def test_sweep_frame_makes_the_residual_independent_of_the_sensor_mount(Est, sma
     base = tiny_residual(Est, clip=None, frame="base").fit(Xb, y)
     moved = np.abs(base.predict_residual(Xr) - rotated(base.predict_residual(Xb)))
     assert moved.max() > 0.1
+
+
+# ---------------------------------------------------------------------------
+# sample weights
+# ---------------------------------------------------------------------------
+def test_masked_normalized_mse_weights_the_steps():
+    g = torch.Generator().manual_seed(0)
+    prediction = torch.randn(2, 5, 3, generator=g, requires_grad=True)
+    target = torch.randn(2, 5, 3, generator=g)
+    weight = torch.tensor([[0.5, 2.0, 0.0, 1.0, 0.0], [0.0, 0.25, 3.0, 0.0, 0.0]])
+    loss = MaskedNormalizedMSE()(prediction, target, weight)
+    p, t, w = prediction.detach().numpy(), target.numpy(), weight.numpy()
+    expected = (w * ((p - t) ** 2).sum(axis=2)).sum() / (3 * w.sum())
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+    # steps of weight 0 get no gradient, the others do
+    loss.backward()
+    assert (prediction.grad[weight == 0] == 0).all()
+    assert (prediction.grad[weight > 0].abs().sum(dim=1) > 0).all()
+    # weights below 1 in all are not rounded up
+    small = MaskedNormalizedMSE()(prediction, target, weight / 100)
+    assert small.item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_standardizer_weights_count_as_repeated_rows():
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=(6, 3))
+    weight = np.array([1.0, 2.0, 0.0, 3.0, 1.0, 1.0])
+    weighted = Standardizer.fit(values, weight)
+    repeated = Standardizer.fit(np.repeat(values, weight.astype(int), axis=0))
+    assert_allclose(weighted.mean, repeated.mean, rtol=1e-12)
+    assert_allclose(weighted.scale, repeated.scale, rtol=1e-12)
+    unit = Standardizer.fit(values, np.ones(6))
+    assert_allclose(unit.mean, Standardizer.fit(values).mean, rtol=1e-12)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_zero_weighted_run_gives_the_model_without_it(Est, small, fitted):
+    """Weight 0 on a run: no window, no gradient, no statistics; the model fitted without it."""
+    _, Xb, y = small
+    dropped = (Xb["setting"] == SMALL_SETTINGS[0]).to_numpy()
+    weight = np.where(dropped, 0.0, 1.0)
+    zeroed = tiny_residual(Est).fit(Xb, y, sample_weight=weight)
+    without = tiny_residual(Est).fit(Xb[~dropped], y[~dropped], sample_weight=weight[~dropped])
+    assert_array_equal(zeroed.predict(Xb), without.predict(Xb))
+    assert_array_equal(zeroed.sigma_e_, without.sigma_e_)
+    # the weights reach the loss: unlike the unweighted fit
+    _, pred = fitted(Est)
+    assert np.abs(zeroed.predict(Xb) - pred).max() > 1e-3
+    # unit weights are no weights
+    ones = tiny_residual(Est).fit(Xb, y, sample_weight=np.ones(len(Xb)))
+    assert_array_equal(ones.predict(Xb), pred)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_sample_weight_forms_and_errors(Est, small):
+    _, Xb, y = small
+    weight = np.linspace(0.5, 2.0, len(Xb))
+    before = weight.copy()
+    expected = tiny_residual(Est, max_epochs=1).fit(Xb, y, sample_weight=weight).predict(Xb)
+    assert_array_equal(weight, before)  # not overwritten
+    for form in (weight.tolist(), pd.Series(weight, index=Xb.index[::-1])):
+        est = tiny_residual(Est, max_epochs=1).fit(Xb, y, sample_weight=form)
+        assert_array_equal(est.predict(Xb), expected)  # by position, as numpy arrays
+    for bad, match in [(weight[:-1], r"sample_weight.shape"),
+                       (-weight, r"Negative values in data passed to `sample_weight`"),
+                       (np.zeros(len(Xb)), r"at least one non-zero"),
+                       (np.where(_motion(Xb), 0.0, 1.0), r"positive sample_weight")]:
+        with pytest.raises(ValueError, match=match):
+            tiny_residual(Est, max_epochs=1).fit(Xb, y, sample_weight=bad)
+
+
+def test_sample_weight_is_routed_through_a_pipeline(small):
+    import sklearn
+
+    X, _, y = small
+    weight = np.where((X["setting"] == SMALL_SETTINGS[1]).to_numpy(), 0.0, 1.0)
+    steps = lambda: [("backbone", PDLBackbone()),  # noqa: E731
+                     ("residual", tiny_residual(GRUResidual, max_epochs=1))]
+    expected = Pipeline(steps()).fit(X, y, residual__sample_weight=weight).predict(X)
+    with sklearn.config_context(enable_metadata_routing=True):
+        pipe = Pipeline(steps())
+        pipe.named_steps["residual"].set_fit_request(sample_weight=True)
+        assert_array_equal(pipe.fit(X, y, sample_weight=weight).predict(X), expected)
+
+
+# ---------------------------------------------------------------------------
+# device, methods a regressor does not offer
+# ---------------------------------------------------------------------------
+def _unavailable_device():
+    """A CUDA device this machine does not have."""
+    return f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_unavailable_device_is_refused_up_front(Est, small, fitted, monkeypatch):
+    _, Xb, y = small
+    device = _unavailable_device()
+    prepared = []
+    monkeypatch.setattr(_estimators.Standardizer, "fit",
+                        lambda *a, **k: prepared.append(1))  # never reached
+    with pytest.raises(ValueError, match=rf"has device='{device}', but torch cannot compute "
+                       r"there on this machine; the devices available are \['cpu'"):
+        tiny_residual(Est, device=device).fit(Xb, y)
+    with pytest.raises(ValueError, match="device="):
+        tiny_residual(Est, device=device).partial_fit(Xb, y)
+    assert not prepared
+    monkeypatch.undo()
+    est = copy.deepcopy(fitted(Est)[0]).set_params(device=device)
+    with pytest.raises(ValueError, match=r"the devices available are"):
+        est.predict(Xb)
+    with pytest.raises(ValueError, match="cannot compute there"):
+        tiny_residual(Est, device="nowhere").fit(Xb, y)
+    assert "cpu" in _estimators.available_devices()
+
+
+def test_on_cpu_copies_only_when_needed():
+    module = _seeded(MODULES[0])
+    assert on_cpu(module, torch.float32) is module
+    double = on_cpu(module, torch.float64)
+    assert double is not module
+    assert {p.dtype for p in double.parameters()} == {torch.float64}
+    assert {p.dtype for p in module.parameters()} == {torch.float32}
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_learner_trained_on_a_gpu(Est, small, fitted):
+    _, Xb, y = small
+    est = tiny_residual(Est, device="cuda").fit(Xb, y)
+    assert next(est.module_.parameters()).device.type == "cuda"
+    pred = est.predict(Xb)
+    assert np.isfinite(pred).all()
+    # the context is encoded on a CPU copy of the encoder, as predict encodes it
+    z = est.encode_context(Xb)
+    assert next(est.module_.parameters()).device.type == "cuda"
+    cpu = copy.deepcopy(est)
+    cpu.module_.to("cpu")
+    cpu.device = "cpu"
+    assert_array_equal(cpu.encode_context(Xb), z)
+    # the GPU's kernels may round as TF32 (1e-3 relative)
+    assert_allclose(cpu.predict(Xb), pred, rtol=0, atol=1e-2)
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+def test_methods_a_regressor_does_not_offer(Est, small, fitted):
+    _, Xb, _ = small
+    est, _ = fitted(Est)
+    assert not hasattr(est, "predict_proba")
+    assert not hasattr(Est(), "predict_proba")
+    with pytest.raises(AttributeError, match="it is a regressor of tip positions. Use predict"):
+        est.predict_proba(Xb)
+    for method in (est.forward, lambda X: list(est.forward_iter(X)), est.get_dataset):
+        with pytest.raises(TypeError, match=r"not DataFrame. Use .*\.predict for tip"):
+            method(Xb)
+    with pytest.raises(TypeError, match="not ndarray"):
+        est.forward(np.zeros((4, 9), dtype=np.float32))
 
 
 # ---------------------------------------------------------------------------

@@ -10,6 +10,7 @@ from zero for longer than noise and model error explain: the shaft has been
 repositioned since the sweep, and the sweep-calibrated models no longer hold.
 """
 
+import math
 from numbers import Integral, Real
 
 import numpy as np
@@ -20,6 +21,7 @@ from sklearn.utils import Bunch
 from sklearn.utils._param_validation import Interval, StrOptions, validate_parameter_constraints
 
 from .. import _format as fmt
+from ._sample import CHANNELS, real_sample
 
 __all__ = ["ShaftChangeDetector"]
 
@@ -358,7 +360,10 @@ class ShaftChangeDetector(BaseEstimator):
         q1, q2 : float
             Motor angles (deg).
         tau1, tau2 : float
-            Drive torques (N mm).
+            Drive torques (N mm). Each channel must be a finite real number
+            (``int``, ``float``, a numpy integer or floating scalar): ``bool``,
+            strings, bytes, ``Decimal`` and complex numbers raise
+            ``TypeError``, as in :meth:`OnlineEstimator.step`.
 
         Returns
         -------
@@ -368,12 +373,11 @@ class ShaftChangeDetector(BaseEstimator):
             alarm until ``reset``.
         """
         self._check_started()
-        values = {"q1": q1, "q2": q2, "tau1": tau1, "tau2": tau2}
-        for name, value in values.items():
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (Real, np.number)):
-                raise TypeError(f"{name} must be a real number; got {value!r}.")
-            if not np.isfinite(value):
+        sample = real_sample(q1, q2, tau1, tau2)
+        for name, value in zip(CHANNELS, sample):
+            if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite; got {value!r}.")
+        q1, q2, tau1, tau2 = sample
         q = np.array([[q1, q2]], dtype=float)
         tau = np.array([[tau1, tau2]], dtype=float)
         h = []

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from numbers import Real
 
 import numpy as np
@@ -27,14 +28,14 @@ from .. import _format as fmt
 from .._runs import run_codes
 from .._validation import check_recordings
 from ..backbones import PCCBackbone, PCCParams, PDLBackbone
+from ..exceptions import PipelineChangedWarning
 from ..frames import sweep_frame
 from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
 from ._fast import BackboneStep, NumpyStep
-from ._weights import step_weights
+from ._sample import CHANNELS, real_sample
+from ._weights import fitted_fingerprint, step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
-
-_CHANNELS = ("q1", "q2", "tau1", "tau2")
 
 
 def check_online_pipeline(pipeline):
@@ -160,6 +161,20 @@ def _step_class(engine):
     return _jit.JitStep
 
 
+def _step_inputs(residual, rotation, context):
+    """What the step reads of the residual: folded weights, clip bound, torque features.
+
+    Taken from the pipeline once, by :meth:`OnlineEstimator.start`; the
+    estimator keeps them (and pickles them), so that refitting the pipeline
+    afterwards does not change a started estimator. ``(None, inf, False)``
+    without a learned residual.
+    """
+    if residual is None:
+        return None, math.inf, False
+    clip = math.inf if residual.clip is None else float(residual.clip)
+    return step_weights(residual, rotation, context), clip, residual.use_torque
+
+
 def _neutral_angles(params):
     """Neutral motor angles (deg) of a calibration."""
     return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
@@ -182,6 +197,15 @@ class OnlineEstimator(BaseEstimator):
         Fitted ``Pipeline([("backbone", PCCBackbone() | PDLBackbone()),
         ("residual", NoResidual() | MLPResidual() | GRUResidual())])``; the
         residual step may be left out. It is read, never modified.
+        :meth:`start` takes what the step needs from it (the backbone's
+        calibration on the sweep, the sweep context, the network's weights
+        folded with the run's constants) and keeps it: a started estimator
+        does not follow a later refit of the pipeline, and neither does its
+        pickled copy. :meth:`reset` and unpickling warn with
+        :class:`~skcath.exceptions.PipelineChangedWarning` when the pipeline
+        has been refit or its parameters set since :meth:`start`; call
+        :meth:`start` again to step the pipeline as it is. A network trained
+        on a GPU is read into CPU arrays.
     dtype : {"float64", "float32"}, default="float64"
         Precision of the residual network's arithmetic on the step path.
         ``"float64"`` evaluates the fitted (float32) weights without
@@ -327,6 +351,7 @@ class OnlineEstimator(BaseEstimator):
         """:meth:`start` once the parameters are validated."""
         step_class = _step_class(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
+        self._fingerprint = fitted_fingerprint(backbone, residual)
         X, run = _check_sweep(sweep)
         calibration = backbone.calibrate(X)
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
@@ -348,7 +373,8 @@ class OnlineEstimator(BaseEstimator):
         self._last_sweep = (float(q[-1, 0]), float(q[-1, 1]), float(tau[-1, 0]), float(tau[-1, 1]))
         self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
         self._limit2 = self.q_limit_ * self.q_limit_
-        self._pack(residual, step_class)
+        self._step_inputs = _step_inputs(residual, self.rotation_, self.context_)
+        self._pack(step_class)
         if self.detector is not None:
             # a copy: the parameter stays as given, and two estimators never share state
             self.detector_ = copy.deepcopy(self.detector).start(X)
@@ -356,20 +382,16 @@ class OnlineEstimator(BaseEstimator):
         self._started = True
         return self.reset()
 
-    def _pack(self, residual, step_class):
-        """The step's packed arrays from the calibration and the context of :meth:`start`.
+    def _pack(self, step_class):
+        """The step's packed arrays from what :meth:`start` took from the pipeline.
 
-        ``residual`` is the pipeline's residual step (or None), ``step_class``
-        the engine's (:class:`~skcath.online._fast.NumpyStep` or
-        :class:`~skcath.online._jit.JitStep`). Sets ``nominal_``,
+        The backbone's calibration and the folded weights, clip and features
+        of the residual (``_step_inputs``, see :func:`_step_inputs`);
+        ``step_class`` is the engine's (:class:`~skcath.online._fast.NumpyStep`
+        or :class:`~skcath.online._jit.JitStep`). Sets ``nominal_``,
         ``engine_`` and ``compile_seconds_``; the recurrent state is zero.
         """
-        weights, clip, use_torque = None, math.inf, False
-        if residual is not None:
-            weights = step_weights(residual, self.rotation_, self.context_)
-            use_torque = residual.use_torque
-            if residual.clip is not None:
-                clip = float(residual.clip)
+        weights, clip, use_torque = self._step_inputs
         backbone = BackboneStep(self.backbone_params_)
         self._packed = step_class(backbone, weights, clip, use_torque, self.dtype)
         self._call = self._packed.call
@@ -381,9 +403,10 @@ class OnlineEstimator(BaseEstimator):
     # ------------------------------------------------------------ pickling
     # The packed arrays are viewed by the estimator (the hidden state, the
     # last sample, the nominal tip), which pickle would turn into detached
-    # copies. A pickle therefore holds the calibration and the running
-    # state, and loading packs the step again from the pipeline and restores
-    # the state.
+    # copies. A pickle therefore holds the calibration, the folded weights
+    # taken at start and the running state, and loading packs the step again
+    # from those (not from the pipeline, which may have been refit since)
+    # and restores the state.
     _RUNTIME = ("_packed", "_call", "_last", "nominal_")
 
     def __getstate__(self):
@@ -402,30 +425,56 @@ class OnlineEstimator(BaseEstimator):
         super().__setstate__(state)
         if running is None:
             return
+        if not hasattr(self, "_step_inputs"):  # pickled before the weights were kept
+            _, residual = check_online_pipeline(self.pipeline)
+            self._step_inputs = _step_inputs(residual, self.rotation_, self.context_)
         # engine="auto" takes numba if it can be imported where the pickle is loaded
-        _, residual = check_online_pipeline(self.pipeline)
-        self._pack(residual, _step_class(self.engine))
+        self._pack(_step_class(self.engine))
         for h, saved in zip(self._packed.hidden, running["hidden"], strict=True):
             h[:] = saved
         self._last[:] = running["last"]
         self.nominal_[:] = running["nominal"]
+        self._warn_if_pipeline_changed("was unpickled")
 
     def reset(self):
         """Start a new motion sequence: zero recurrent state, as right after :meth:`start`.
 
         The first step after ``reset`` takes its motor differences from the
         last sweep sample, as ``predict`` does for the first motion row.
-        The detector, if any, is not reset.
+        The detector, if any, is not reset. The estimator goes on stepping
+        the pipeline as it was at :meth:`start`; if the pipeline has been
+        refit or its parameters set since, ``reset`` warns with
+        :class:`~skcath.exceptions.PipelineChangedWarning`.
 
         Returns
         -------
         self : OnlineEstimator
         """
         self._check_started()
+        self._warn_if_pipeline_changed("was reset")
         self._packed.reset(self._last_sweep)
         self.n_steps_ = 0
         self.n_held_ = 0
         return self
+
+    def _warn_if_pipeline_changed(self, event):
+        """Warn when the pipeline no longer is the one :meth:`start` took its step from."""
+        fingerprint = getattr(self, "_fingerprint", None)
+        if fingerprint is None:  # pickled before fingerprints were kept
+            return
+        try:
+            changed = fitted_fingerprint(*check_online_pipeline(self.pipeline)) != fingerprint
+        except (TypeError, ValueError, AttributeError):  # no longer a fitted pipeline
+            changed = True
+        if changed:
+            warnings.warn(
+                f"This OnlineEstimator {event}, but its pipeline has been refit or its "
+                "parameters set since start(): the estimator steps the pipeline as it was "
+                "at start (its calibration, sweep context and weights), not the pipeline "
+                "it holds now. Call start(sweep) again to step the pipeline as it is.",
+                PipelineChangedWarning,
+                stacklevel=3,
+            )
 
     def _check_started(self):
         if not self._started:
@@ -439,7 +488,7 @@ class OnlineEstimator(BaseEstimator):
 
     def _accept(self, sample):
         """The sample to step with after the bad-input policy (a list of 4 floats)."""
-        bad = [name for name, v in zip(_CHANNELS, sample) if not math.isfinite(v)]
+        bad = [name for name, v in zip(CHANNELS, sample) if not math.isfinite(v)]
         if not bad:
             distance = math.hypot(sample[0] - self._qn[0], sample[1] - self._qn[1])
             if distance * distance <= self._limit2:
@@ -459,7 +508,7 @@ class OnlineEstimator(BaseEstimator):
                 "accepted. Increase q_margin or use on_invalid='hold'."
             )
         held = list(sample)
-        for k, name in enumerate(_CHANNELS):
+        for k, name in enumerate(CHANNELS):
             if name in bad:
                 held[k] = float(self._last[k])
         d1, d2 = held[0] - self._qn[0], held[1] - self._qn[1]
@@ -477,6 +526,10 @@ class OnlineEstimator(BaseEstimator):
             Motor angles (deg).
         tau1, tau2 : float
             Drive torques (N mm in the simulator; the units of the training data).
+            Each channel must be a real number (``int``, ``float``, a numpy
+            integer or floating scalar); ``bool``, strings, bytes,
+            ``Decimal`` and complex numbers raise ``TypeError``, as in
+            :meth:`ShaftChangeDetector.step`.
         out : ndarray of shape (3,), dtype float64, optional
             Written in place and returned; without it a new array is
             returned. Passing ``out`` keeps the loop free of allocations.
@@ -488,13 +541,10 @@ class OnlineEstimator(BaseEstimator):
         """
         if not self._started:
             self._check_started()
-        try:
-            q1, q2, tau1, tau2 = float(q1), float(q2), float(tau1), float(tau2)
-        except (TypeError, ValueError):
-            raise TypeError(
-                "step takes four numbers (q1, q2 in deg, tau1, tau2); got "
-                f"{q1!r}, {q2!r}, {tau1!r}, {tau2!r}."
-            ) from None
+        # floats pass as they are; anything else is checked to be a real number
+        if not (type(q1) is float and type(q2) is float
+                and type(tau1) is float and type(tau2) is float):
+            q1, q2, tau1, tau2 = real_sample(q1, q2, tau1, tau2)
         d1, d2 = q1 - self._qn[0], q2 - self._qn[1]
         # NaN or inf in any channel makes the sum NaN, which fails the test
         if not (d1 - d1 + d2 - d2 + tau1 - tau1 + tau2 - tau2 == 0.0

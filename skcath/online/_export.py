@@ -30,8 +30,9 @@ class _StepGraph(nn.Module):
     """One step of a fitted residual learner on raw features (see :func:`export`).
 
     The network's own ``step`` (:meth:`GRUResidualModule.step`,
-    :meth:`MLPResidualModule.step`) on a copy of the module in ``dtype``,
-    between the normalisation, the rotations, ``sigma_e`` and the clip.
+    :meth:`MLPResidualModule.step`) on a CPU copy of the module in ``dtype``
+    (whatever the ``device`` it was trained on), between the normalisation,
+    the rotations, ``sigma_e`` and the clip.
     """
 
     def __init__(self, residual, dtype):
@@ -45,7 +46,7 @@ class _StepGraph(nn.Module):
         self.register_buffer("sigma_e", as_tensor(residual.sigma_e_))
         clip = float("inf") if residual.clip is None else float(residual.clip)
         self.register_buffer("clip", as_tensor(clip))
-        self.to(dtype).eval()
+        self.to(device="cpu", dtype=dtype).eval()
 
     def _features(self, features, rotation):
         if not self.rotate:

@@ -12,6 +12,7 @@ of every run; prediction runs every motion sequence from its start.
 from __future__ import annotations
 
 import copy
+import inspect
 from contextlib import contextmanager
 from numbers import Integral, Real
 
@@ -24,10 +25,11 @@ from sklearn.exceptions import NotFittedError
 from sklearn.frozen import FrozenEstimator
 from sklearn.utils import check_random_state
 from sklearn.utils._param_validation import Interval, StrOptions, validate_parameter_constraints
+from sklearn.utils.validation import _check_sample_weight
 from skorch import NeuralNetRegressor
 from skorch.callbacks import EarlyStopping, LRScheduler, ProgressBar
 from skorch.dataset import Dataset
-from skorch.utils import to_tensor
+from skorch.utils import is_dataset, to_tensor
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
@@ -43,10 +45,18 @@ from ._features import (
     pool_sweep,
     step_feature_names,
     sweep_feature_names,
+    weighted_mean_std,
 )
-from ._modules import GRUResidualModule, MaskedNormalizedMSE, MLPResidualModule
+from ._modules import GRUResidualModule, MaskedNormalizedMSE, MLPResidualModule, on_cpu
 
-__all__ = ["GRUResidual", "MLPResidual", "check_backbone_columns", "nominal_tip"]
+__all__ = [
+    "GRUResidual",
+    "MLPResidual",
+    "available_devices",
+    "check_backbone_columns",
+    "check_device",
+    "nominal_tip",
+]
 
 
 def check_backbone_columns(X: pd.DataFrame, owner: str) -> None:
@@ -93,6 +103,37 @@ def _torch_runtime(n_threads, seed):
         torch.set_num_threads(previous)
 
 
+def available_devices():
+    """The torch devices this machine can compute on: ``"cpu"``, then each GPU."""
+    devices = ["cpu"]
+    if torch.cuda.is_available():
+        devices += [f"cuda:{k}" for k in range(torch.cuda.device_count())]
+    if torch.backends.mps.is_available():
+        devices.append("mps")
+    return devices
+
+
+def check_device(device, owner):
+    """Raise a clear error unless torch can compute on ``device`` (a learner's parameter).
+
+    Checked before any work, so that a missing GPU is reported before the
+    data are prepared rather than by torch's own error at the first tensor.
+    ``None`` (skorch: leave the network where it is) is accepted.
+    """
+    if device is None:
+        return
+    try:
+        where = torch.device(device)
+        if where.type != "cpu":
+            torch.empty(0, device=where)
+    except Exception as exc:  # torch raises RuntimeError, AssertionError, NotImplementedError
+        raise ValueError(
+            f"{owner} has device={device!r}, but torch cannot compute there on this "
+            f"machine; the devices available are {available_devices()}. Pass "
+            "device='cpu', or install a torch build for the GPU (docs/install.rst)."
+        ) from exc
+
+
 def _silent(*args, **kwargs):
     """Sink of the early-stopping message when ``verbose=0``."""
 
@@ -123,6 +164,17 @@ class _SettingHoldout:
         train = torch.utils.data.Subset(dataset, np.flatnonzero(~is_valid).tolist())
         valid = torch.utils.data.Subset(dataset, np.flatnonzero(is_valid).tolist())
         return train, valid
+
+
+def _not_prepared(learner, data):
+    """Message for data given to the network that were not prepared from recordings."""
+    name = type(learner).__name__
+    return (
+        f"{name} takes recordings in the long format (a DataFrame) in fit, predict and "
+        f"predict_residual only; the network's methods (forward, forward_iter, infer) take "
+        f"the input those prepare from recordings, not {type(data).__name__}. Use "
+        f"{name}.predict for tip positions (mm) or predict_residual for the residual (mm)."
+    )
 
 
 def _sweep_pooling(learner):
@@ -260,14 +312,24 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         dataset = self.get_dataset(X, y)
         return _SettingHoldout(self.validation_fraction, self._split_seed_)(dataset)
 
+    def get_dataset(self, X, y=None):
+        if not is_dataset(X) and not (isinstance(X, dict) and "features" in X):
+            raise TypeError(_not_prepared(self, X))
+        return super().get_dataset(X, y)
+
     def infer(self, x, **fit_params):
         x = to_tensor(x, device=self.device)
         if not isinstance(x, dict) or "features" not in x:
-            raise TypeError(
-                f"{type(self).__name__} takes recordings in the long format (a DataFrame) "
-                "in fit and predict; got data that was not prepared from recordings."
-            )
+            raise TypeError(_not_prepared(self, x))
         return self.module_(x["features"], x.get("sweep"), x.get("sweep_length"))
+
+    @property
+    def predict_proba(self):
+        """Not offered: a residual learner is a regressor (raises ``AttributeError``)."""
+        raise AttributeError(
+            f"{type(self).__name__} has no predict_proba: it is a regressor of tip positions. "
+            "Use predict (tip positions, mm) or predict_residual (residual, mm)."
+        )
 
     def get_loss(self, y_pred, y_true, X=None, training=False):
         y_true = to_tensor(y_true, device=self.device)
@@ -311,14 +373,19 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         check_backbone_columns(X, type(self).__name__)
         return X, y
 
-    def _check_training_data(self, X, y, method):
-        """The checked recordings and targets of ``fit`` or ``partial_fit``."""
+    def _check_training_data(self, X, y, sample_weight, method):
+        """The checked recordings, targets and sample weights of ``fit`` or ``partial_fit``."""
         if y is None:
             raise ValueError(
                 f"{type(self).__name__} requires y to be passed, but the target y is "
                 f"None: {method} needs the tip positions y."
             )
-        return self._check_X(X, y)
+        X, y = self._check_X(X, y)
+        if sample_weight is not None:
+            sample_weight = _check_sample_weight(
+                sample_weight, X, dtype=np.float64, ensure_non_negative=True
+            )
+        return X, y, sample_weight
 
     def _pretrained_source(self):
         """The fitted residual whose weights and statistics start training, or None."""
@@ -391,21 +458,30 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         sweep = to_padded(F, s_names, phase=fmt.SWEEP, dtype=dtype)
         return F, motion, sweep, e, rotations
 
-    def _fit_statistics(self, F, e):
+    def _fit_statistics(self, F, e, sample_weight=None):
+        """Normalisation statistics and ``sigma_e_``, weighted by ``sample_weight`` if given."""
         x_names = list(step_feature_names(self.use_torque))
         s_names = list(sweep_feature_names(self.use_torque))
         is_motion = (F[fmt.PHASE] == fmt.MOTION).to_numpy()
         is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        w = np.ones(len(F)) if sample_weight is None else sample_weight
         e = e[is_motion]
-        finite = np.isfinite(e).all(axis=1)
+        finite = np.isfinite(e).all(axis=1) & (w[is_motion] > 0)
         if not finite.any():
             raise ValueError(
-                "y has no finite tip position on a motion row: the residual learner "
-                "needs measured tip positions during motion to learn from."
+                "y has no finite tip position on a motion row"
+                + ("" if sample_weight is None else " of positive sample_weight")
+                + ": the residual learner needs measured tip positions during motion to "
+                "learn from."
             )
-        self.x_scaler_ = Standardizer.fit(F.loc[is_motion, x_names].to_numpy())
-        self.s_scaler_ = Standardizer.fit(F.loc[is_sweep, s_names].to_numpy())
-        sigma = e[finite].std(axis=0)
+        weights = {}
+        if sample_weight is not None:
+            weights = {"motion": w[is_motion], "sweep": w[is_sweep], "e": w[is_motion][finite]}
+        self.x_scaler_ = Standardizer.fit(
+            F.loc[is_motion, x_names].to_numpy(), weights.get("motion")
+        )
+        self.s_scaler_ = Standardizer.fit(F.loc[is_sweep, s_names].to_numpy(), weights.get("sweep"))
+        _, sigma = weighted_mean_std(e[finite], weights.get("e"))
         self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
 
     def _context_input(self, sweep, dtype=np.float32):
@@ -417,8 +493,13 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         values[~valid] = 0.0
         return values, np.maximum(lengths, 1).astype(np.int64)
 
-    def _training_windows(self, X, motion, sweep):
-        """Inputs and targets of the training windows, one item per window."""
+    def _training_windows(self, X, motion, sweep, sample_weight=None):
+        """Inputs and targets of the training windows, one item per window.
+
+        With ``sample_weight``, the loss mask of every step is multiplied by
+        the weight of its row, and windows whose rows all have weight 0 are
+        left out: they would contribute no gradient.
+        """
         features = self.x_scaler_.transform(motion.values).astype(np.float32)
         features[~motion.mask] = 0.0
         target = (motion.target / self.sigma_e_).astype(np.float32)
@@ -440,17 +521,26 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         # Windows that start inside a run begin from a zero hidden state that
         # the run never had: their first burn_in steps only warm the state up.
         warm = (start > 0)[:, None] & (np.arange(width)[None, :] < self.burn_in)
-        loss_mask &= ~warm
+        loss_mask = (loss_mask & ~warm).astype(np.float32)
+        keep = slice(None)
+        if sample_weight is not None:
+            row = np.where(motion.mask, motion.positions, 0)
+            step_weight = np.where(motion.mask, sample_weight[row], 0.0)
+            window_weight = np.where(inside, step_weight[rows, steps], 0.0)
+            loss_mask *= window_weight.astype(np.float32)
+            keep = np.flatnonzero((window_weight > 0).any(axis=1))
+            if keep.size == 0:
+                raise ValueError("No motion row of X has a positive sample_weight to train on.")
         group = _setting_codes(X, motion.runs)[run_index]
         data = {
-            "features": window_features.astype(np.float32),
-            "mask": loss_mask.astype(np.float32),
-            "group": group.astype(np.int64),
+            "features": window_features.astype(np.float32)[keep],
+            "mask": loss_mask[keep],
+            "group": group.astype(np.int64)[keep],
         }
         if self.use_context:
-            data["sweep"] = sweep_values[run_index]
-            data["sweep_length"] = sweep_lengths[run_index]
-        return data, window_target.astype(np.float32)
+            data["sweep"] = sweep_values[run_index][keep]
+            data["sweep_length"] = sweep_lengths[run_index][keep]
+        return data, window_target.astype(np.float32)[keep]
 
     # ------------------------------------------------------------------ training
     def _start_training(self):
@@ -463,6 +553,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             self.initialize()
             source = self._pretrained_source()
             if source is not None:
+                _check_same_network(self, source)
                 self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
                 self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
                 self.sigma_e_ = source.sigma_e_.copy()
@@ -470,12 +561,12 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 for name in ("x_scaler_", "s_scaler_", "sigma_e_"):
                     self.__dict__.pop(name, None)
 
-    def _partial_fit(self, X, y, **fit_params):
+    def _partial_fit(self, X, y, sample_weight=None, **fit_params):
         """Train the initialised network for ``max_epochs`` on checked recordings."""
         F, motion, sweep, e, _ = self._sequences(X, y)
         if not hasattr(self, "sigma_e_"):
-            self._fit_statistics(F, e)
-        data, target = self._training_windows(X, motion, sweep)
+            self._fit_statistics(F, e, sample_weight)
+        data, target = self._training_windows(X, motion, sweep, sample_weight)
         self._record_columns(X)
         seed = self._seed()
         self._split_seed_ = None if seed is None else seed + 1
@@ -487,7 +578,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
 
     # ------------------------------------------------------------------ public API
     @_fit_context(prefer_skip_nested_validation=True)
-    def fit(self, X, y, **fit_params):
+    def fit(self, X, y, sample_weight=None, **fit_params):
         """Learn the residual ``e = y - b`` on the motion rows.
 
         The network starts from ``pretrained`` or from a random initialisation,
@@ -501,6 +592,16 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         y : array-like of shape (n_samples, 3)
             Measured tip positions (mm); only motion rows are used, NaN rows
             (tracker dropouts) are skipped.
+        sample_weight : array-like of shape (n_samples,), default=None
+            Non-negative weight of every row, matched to the rows of ``X`` by
+            position. The weights of the motion rows multiply their terms in
+            the masked loss (a weighted mean over the steps of each batch);
+            the normalisation statistics and ``sigma_e_`` are weighted means
+            (the sweep statistics with the weights of the sweep rows).
+            Training windows whose rows all have weight 0 are left out, so a
+            run of weight 0 gives no window and no gradient, and does not
+            enter the statistics. None weighs every row equally. (``score``
+            does not take weights: its metric weighs runs equally.)
         **fit_params : dict
             Passed to skorch's ``partial_fit``.
 
@@ -508,25 +609,28 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         -------
         self : object
         """
-        X, y = self._check_training_data(X, y, "fit")
+        check_device(self.device, type(self).__name__)
+        X, y, sample_weight = self._check_training_data(X, y, sample_weight, "fit")
         if not self.warm_start or not self.initialized_:
             self._start_training()
-        return self._partial_fit(X, y, **fit_params)
+        return self._partial_fit(X, y, sample_weight, **fit_params)
 
     @_fit_context(prefer_skip_nested_validation=True)
-    def partial_fit(self, X, y, classes=None, **fit_params):
+    def partial_fit(self, X, y, classes=None, sample_weight=None, **fit_params):
         """Train for ``max_epochs`` more epochs without re-initialising the network.
 
         The first call starts the network as :meth:`fit` does and validates
         the parameters; later calls check only the data, as scikit-learn's
         ``partial_fit`` methods do. Normalisation statistics are computed on
         the first call (or taken from ``pretrained``) and kept afterwards.
-        Parameters as in :meth:`fit`.
+        Parameters as in :meth:`fit` (``sample_weight`` weighs the statistics
+        on the first call only, and the loss on every call).
         """
-        X, y = self._check_training_data(X, y, "partial_fit")
+        check_device(self.device, type(self).__name__)
+        X, y, sample_weight = self._check_training_data(X, y, sample_weight, "partial_fit")
         if not self.initialized_:
             self._start_training()
-        return self._partial_fit(X, y, **fit_params)
+        return self._partial_fit(X, y, sample_weight, **fit_params)
 
     def _seed(self):
         if self.random_state is None:
@@ -565,6 +669,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             raise NotFittedError(
                 f"This {type(self).__name__} instance is not fitted yet; call fit first."
             )
+        check_device(self.device, type(self).__name__)
         X, _ = self._check_X(X)
         # the network's own precision: float32, or float64 after module_.double()
         dtype = self._module_dtype()
@@ -591,7 +696,9 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
 
         The sweep rows of each run are gathered (:func:`skcath.sequences.to_padded`,
         in float64), pooled over blocks of ``sweep_stride`` samples and
-        normalised as in ``predict``, then encoded by the network's encoder.
+        normalised as in ``predict``, then encoded by the network's encoder
+        on the CPU (a CPU copy of the encoder when the network was trained on
+        another ``device``).
 
         Parameters
         ----------
@@ -619,10 +726,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         dtype = self._module_dtype() if dtype is None else np.dtype(dtype)
         names = sweep_feature_names(self.use_torque)
         sweep = to_padded(X, names, phase=fmt.SWEEP, dtype=np.float64)
-        encoder = self.module_.encoder
         torch_dtype = torch.float64 if dtype == np.float64 else torch.float32
-        if next(encoder.parameters()).dtype != torch_dtype:
-            encoder = copy.deepcopy(encoder).to(torch_dtype)
+        encoder = on_cpu(self.module_.encoder, torch_dtype)
         values, lengths = self._context_input(sweep, dtype)
         with torch.no_grad():
             z = encoder(torch.from_numpy(values), torch.from_numpy(lengths))
@@ -646,6 +751,52 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             Estimated tip positions (mm) in the base frame.
         """
         return self.predict_residual(X) + nominal_tip(X)
+
+
+def _module_arguments(learner):
+    """The arguments the learner's network is built with: its defaults, then ``module__*``."""
+    module = learner.module
+    defaults = {}
+    if isinstance(module, type):
+        for name, p in inspect.signature(module.__init__).parameters.items():
+            if p.default is not inspect.Parameter.empty:
+                defaults[name] = p.default
+    return {**defaults, **learner.get_params_for("module")}
+
+
+def _check_same_network(learner, source):
+    """Raise a clear error unless ``source``'s network has the shape of ``learner``'s.
+
+    Names each ``module__*`` argument that differs, with both values, or else
+    each weight whose shape differs; called before the weights of
+    ``pretrained`` are loaded.
+    """
+    mine, theirs = learner.module_.state_dict(), source.module_.state_dict()
+    shapes = {k: tuple(v.shape) for k, v in mine.items()}
+    their_shapes = {k: tuple(v.shape) for k, v in theirs.items()}
+    if type(learner.module_) is type(source.module_) and shapes == their_shapes:
+        return
+    if type(learner.module_) is not type(source.module_):
+        differences = [
+            f"module={type(learner.module_).__name__} here, "
+            f"{type(source.module_).__name__} in pretrained"
+        ]
+    else:
+        here, there = _module_arguments(learner), _module_arguments(source)
+        differences = [
+            f"module__{k}={here.get(k)!r} here, {there.get(k)!r} in pretrained"
+            for k in sorted(set(here) | set(there))
+            if here.get(k) != there.get(k)
+        ] or [
+            f"weight {k!r} of shape {shapes.get(k)} here, {their_shapes.get(k)} in pretrained"
+            for k in sorted(set(shapes) | set(their_shapes))
+            if shapes.get(k) != their_shapes.get(k)
+        ]
+    raise ValueError(
+        f"pretrained has another network than this {type(learner).__name__}: "
+        f"{'; '.join(differences)}. Give this estimator the module and module__* "
+        "parameters pretrained was fitted with."
+    )
 
 
 def _setting_codes(X, runs):
@@ -704,7 +855,8 @@ _COMMON_PARAMS = """
         random initialisation (fine-tuning). Use
         ``sklearn.frozen.FrozenEstimator(fitted)`` inside ``cross_validate``
         or ``GridSearchCV``, whose ``clone`` drops the weights of a plain
-        fitted estimator.
+        fitted estimator. Its network must have the same size (the same
+        ``module__*`` arguments); one that differs is named in the error.
     validation_fraction : float or None, default=None
         Fraction of the training shaft settings (all repeats of a setting
         together) held out as validation data for early stopping; the best
@@ -723,8 +875,9 @@ _COMMON_PARAMS = """
         0 is silent; 1 prints skorch's epoch table and a progress bar.
     **kwargs
         Any other :class:`skorch.NeuralNetRegressor` parameter, e.g.
-        ``module__hidden_size``, ``device``, ``callbacks`` or
-        ``warm_start``. ``optimizer__weight_decay`` (L2 penalty of Adam)
+        ``module__hidden_size``, ``callbacks``, ``warm_start`` or ``device``
+        (``"cpu"``, ``"cuda"``: where the network trains and predicts,
+        checked by ``fit`` and ``predict`` before any work). ``optimizer__weight_decay`` (L2 penalty of Adam)
         defaults to 1e-4 and ``iterator_train__shuffle`` to True."""
 
 _COMMON_ATTRIBUTES = """

@@ -25,6 +25,7 @@ __all__ = [
     "pool_sweep",
     "step_feature_names",
     "sweep_feature_names",
+    "weighted_mean_std",
 ]
 
 #: Names of the per-sample motor-angle differences (degrees per sample).
@@ -47,6 +48,19 @@ def sweep_feature_names(use_torque: bool = True) -> tuple[str, ...]:
     return (*fmt.MOTOR_COLUMNS, *torque)
 
 
+def weighted_mean_std(values: np.ndarray, sample_weight=None):
+    """Mean and standard deviation of the rows of ``values`` (n_rows, n_features).
+
+    Weighted by ``sample_weight`` (n_rows,), positive, when it is given:
+    ``sum w v / sum w`` and the square root of ``sum w (v - mean)^2 / sum w``.
+    """
+    if sample_weight is None:
+        return values.mean(axis=0), values.std(axis=0)
+    w = np.asarray(sample_weight, dtype=np.float64)
+    mean = np.average(values, axis=0, weights=w)
+    return mean, np.sqrt(np.average((values - mean) ** 2, axis=0, weights=w))
+
+
 @dataclass(frozen=True)
 class Standardizer:
     """Featurewise mean and standard deviation, ``(v - mean) / scale``.
@@ -63,15 +77,23 @@ class Standardizer:
     scale: np.ndarray
 
     @classmethod
-    def fit(cls, values: np.ndarray) -> "Standardizer":
-        """Statistics of the rows of ``values`` (n_rows, n_features); NaN rows are ignored."""
+    def fit(cls, values: np.ndarray, sample_weight=None) -> "Standardizer":
+        """Statistics of the rows of ``values`` (n_rows, n_features); NaN rows are ignored.
+
+        With ``sample_weight`` (n_rows,), non-negative, the mean and the
+        standard deviation are weighted; a row of weight 0 counts as if it
+        were not there.
+        """
         values = np.asarray(values, dtype=np.float64)
         finite = np.isfinite(values).all(axis=1)
+        if sample_weight is not None:
+            sample_weight = np.asarray(sample_weight, dtype=np.float64)
+            finite &= sample_weight > 0
         if not finite.any():
             raise ValueError("Cannot compute normalisation statistics: no finite row.")
-        v = values[finite]
-        mean = v.mean(axis=0)
-        std = v.std(axis=0)
+        mean, std = weighted_mean_std(
+            values[finite], None if sample_weight is None else sample_weight[finite]
+        )
         floor = max(1e-12, 1e-6 * float(std.max()))
         return cls(mean=mean, scale=np.maximum(std, floor))
 

@@ -8,6 +8,8 @@ the clipping.
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from torch import nn
 
@@ -16,7 +18,20 @@ __all__ = [
     "MLPResidualModule",
     "MaskedNormalizedMSE",
     "SweepEncoder",
+    "on_cpu",
 ]
+
+
+def on_cpu(module: nn.Module, dtype: torch.dtype) -> nn.Module:
+    """``module`` itself if its parameters are CPU tensors of ``dtype``, else such a copy.
+
+    What the streaming estimator and the export read a network through, so
+    that a network trained on a GPU (or converted to another precision) is
+    evaluated on the CPU without changing the fitted estimator.
+    """
+    if all(p.device.type == "cpu" and p.dtype == dtype for p in module.parameters()):
+        return module
+    return copy.deepcopy(module).to(device="cpu", dtype=dtype)
 
 
 class SweepEncoder(nn.Module):
@@ -272,11 +287,16 @@ class MaskedNormalizedMSE(nn.Module):
     """Masked normalised-residual loss (paper eq. "loss").
 
     ``L = sum_{j,t} m_{j,t} ||F_{j,t} - e_{j,t} / sigma_e||^2 / (3 sum m_{j,t})``;
-    the target passed in is already ``e / sigma_e``.
+    the target passed in is already ``e / sigma_e``. The mask ``m`` is 1 on
+    the steps that count and 0 elsewhere, or, with sample weights, the weight
+    of each step (0 where it does not count): the loss is then the weighted
+    mean, and a step of weight 0 contributes no gradient.
     """
 
     def forward(self, prediction, target, mask):
-        """Loss of a batch; ``mask`` (batch, T) is 1 on steps that count, 0 elsewhere."""
+        """Loss of a batch; ``mask`` (batch, T) holds the non-negative weight of every step."""
         mask = mask.to(prediction.dtype)
         squared = ((prediction - target) ** 2).sum(dim=2)
-        return (squared * mask).sum() / (3.0 * mask.sum().clamp_min(1.0))
+        total = mask.sum()
+        # a batch without a step that counts has loss 0 (and no gradient)
+        return (squared * mask).sum() / (3.0 * torch.where(total > 0, total, 1.0))
