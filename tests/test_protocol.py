@@ -18,11 +18,13 @@ from sklearn.utils._param_validation import InvalidParameterError
 from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from skcath.metrics import error_cdf, paired_reduction, per_run_rmse
 from skcath.protocol import (
+    ADAPTED_METHOD,
     BUDGET_METHODS,
     COMPARISONS,
     FULL,
     LEARNER_COLUMNS,
     LOCO_METHOD,
+    LOCO_METHODS,
     MAIN_METHODS,
     METHODS,
     PROPOSED_METHOD,
@@ -31,6 +33,7 @@ from skcath.protocol import (
     TORQUE_CONTEXT,
     VARIANTS,
     Schedule,
+    backbone_method,
     calibrate_backbones,
     compute_tables,
     format_report,
@@ -622,8 +625,9 @@ def test_bad_parameters_name_the_parameter(call, name, result):
 # ---------------------------------------------------------------------------
 def test_registry_describes_every_method_once():
     assert list(METHODS) == [
-        "PCC", "PDL", "PDL+GRU", "PDL+MLP", "PDL+GRU (no torque)", "PDL+GRU (no context)",
-        "PDL+GRU (no torque, no context)", "PDL+GRU (LOCO)",
+        "PCC", "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+MLP", "PDL+GRU (no torque)",
+        "PDL+GRU (no context)", "PDL+GRU (no torque, no context)", "PDL+GRU (LOCO)",
+        "PDL+GRU+adapt (LOCO)",
     ]
     assert all(name == method.name for name, method in METHODS.items())
     colours = [method.colour for method in METHODS.values()]
@@ -631,12 +635,26 @@ def test_registry_describes_every_method_once():
     # the learned methods trained within the catheter, with their learner and inputs
     assert dict(VARIANTS) == {
         "PDL+GRU": ("gru", True, True),
+        "PDL+GRU+adapt": ("gru", True, True),
         "PDL+MLP": ("mlp", True, True),
         "PDL+GRU (no torque)": ("gru", False, True),
         "PDL+GRU (no context)": ("gru", True, False),
         "PDL+GRU (no torque, no context)": ("gru", False, False),
     }
     assert METHODS[LOCO_METHOD].loco and LOCO_METHOD not in VARIANTS
+    assert dict(LOCO_METHODS) == {
+        "PDL+GRU (LOCO)": "PDL+GRU", "PDL+GRU+adapt (LOCO)": "PDL+GRU+adapt",
+    }
+    # the adapted methods differ from their paper counterparts by the backbone only
+    assert ADAPTED_METHOD == "PDL+GRU+adapt"
+    assert [name for name, m in METHODS.items() if m.adapt] == [
+        "PDL+adapt", "PDL+GRU+adapt", "PDL+GRU+adapt (LOCO)",
+    ]
+    assert METHODS["PDL+adapt"].backbone_params == {"hysteresis": "play"}
+    assert METHODS["PDL"].backbone_params == {}
+    assert [backbone_method(m) for m in ("PDL+GRU", "PDL+GRU+adapt (LOCO)", "PCC")] == [
+        "PDL", "PDL+adapt", "PCC",
+    ]
     assert PROPOSED_METHOD == "PDL+GRU" and FULL.variants == tuple(VARIANTS)
     # every role lists its methods at distinct positions 0, 1, ...
     for role in ROLES:
@@ -665,6 +683,8 @@ def test_tables_and_figures_read_their_methods_from_the_registry():
         "context (with torque)": ("PDL+GRU (no context)", "PDL+GRU"),
         "context (without torque)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no torque)"),
         "catheter held out -> setting held out": ("PDL+GRU (LOCO)", "PDL+GRU"),
+        "sweep adaptation (setting held out)": ("PDL+GRU", "PDL+GRU+adapt"),
+        "sweep adaptation (catheter held out)": ("PDL+GRU (LOCO)", "PDL+GRU+adapt (LOCO)"),
     }
     from skcath.protocol import _figures
 
@@ -715,9 +735,20 @@ def test_calibrate_backbones_gives_every_backbone_and_the_learner_input(data):
     X, _ = data
     runs = X["run"].isin(X["run"].iloc[[0, -1]]).to_numpy()  # one run of each catheter
     Xr = X[runs].reset_index(drop=True)
-    X_learner, predictions = calibrate_backbones(Xr)
-    assert list(predictions) == ["PCC", "PDL"]
-    assert tuple(X_learner.columns) == LEARNER_COLUMNS
+    inputs, predictions = calibrate_backbones(Xr)
+    assert list(predictions) == ["PCC", "PDL", "PDL+adapt"]
+    assert list(inputs) == ["PDL", "PDL+adapt"]
+    assert all(tuple(X_learner.columns) == LEARNER_COLUMNS for X_learner in inputs.values())
     assert_allclose(predictions["PCC"], PCCBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
     assert_allclose(predictions["PDL"], PDLBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
-    assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions["PDL"])
+    played = PDLBackbone(hysteresis="play").fit(Xr).predict(Xr)
+    assert_allclose(predictions["PDL+adapt"], played, rtol=1e-9, atol=1e-9)
+    for name, X_learner in inputs.items():
+        assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions[name])
+    # the sweep adaptation changes the nominal tip, not the rest of the learner input
+    assert_array_equal(inputs["PDL"].drop(columns=list(BACKBONE_COLUMNS)),
+                       inputs["PDL+adapt"].drop(columns=list(BACKBONE_COLUMNS)))
+    assert not np.allclose(predictions["PDL"], predictions["PDL+adapt"])
+    only, _ = calibrate_backbones(Xr, methods=["PDL"])
+    assert list(only) == ["PDL"]
+    assert_array_equal(only["PDL"], inputs["PDL"])
