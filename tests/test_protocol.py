@@ -483,6 +483,39 @@ def test_ablation_table_when_ablations_were_run(result):
     assert "Table II." in format_report(tables)
 
 
+def test_sweep_adapted_methods_run_beside_the_paper_methods(data, result):
+    """The adapted variant learns on the played backbone; the paper's methods are unchanged."""
+    X, y = data
+    schedule = tiny_schedule(seeds=(0,), variants=("PDL+GRU", "PDL+GRU+adapt"))
+    adapted = run_protocol(X, y, schedule=schedule, exclude_settings=[EXCLUDED], n_jobs=1)
+    names = {"PCC", "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+GRU (LOCO)",
+             "PDL+GRU+adapt (LOCO)"}
+    assert set(adapted.predictions) == names
+    for name in names:
+        assert all(np.isfinite(p).all() for p in adapted.predictions[name].values()), name
+    # adding the adapted variant leaves the paper's methods as they were, to the bit
+    for name in ("PDL", "PDL+GRU", "PDL+GRU (LOCO)"):
+        assert_array_equal(adapted.predictions[name][None if name == "PDL" else 0],
+                           result.predictions[name][None if name == "PDL" else 0])
+    played = PDLBackbone(hysteresis="play").fit(adapted.X).predict(adapted.X)
+    assert_allclose(adapted.predictions["PDL+adapt"][None], played, rtol=1e-9, atol=1e-9)
+    assert not np.allclose(adapted.predictions["PDL+GRU+adapt"][0], adapted.predictions["PDL+GRU"][0])
+
+    tables = compute_tables(adapted, n_bootstrap=N_BOOTSTRAP, random_state=0)
+    table = tables["adaptation"]
+    assert list(table.index) == [
+        "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+GRU (LOCO)", "PDL+GRU+adapt (LOCO)",
+        "ratio PDL+GRU+adapt / PDL", "ratio PDL+GRU+adapt (LOCO) / PDL+GRU",
+    ]
+    assert_allclose(table.loc["ratio PDL+GRU+adapt / PDL"].to_numpy(float),
+                    (table.loc["PDL+GRU+adapt"] / table.loc["PDL"]).to_numpy(float))
+    assert_allclose(table.loc["PDL+GRU"].to_numpy(float), tables["table_1"].loc["PDL+GRU"].to_numpy(float))
+    paired = tables["paired"].set_index(["comparison", "scope"])
+    assert ("sweep adaptation (catheter held out)", "pooled") in paired.index
+    assert "Sweep adaptation" in format_report(tables)
+    assert "adaptation" not in compute_tables(result, n_bootstrap=N_BOOTSTRAP, random_state=0)
+
+
 def test_loco_table(tables):
     loco = tables["loco"]
     assert list(loco.index) == ["PDL", "PDL+GRU", "PDL+GRU (LOCO)", "runs below 4 mm (LOCO, %)"]
@@ -746,9 +779,9 @@ def test_calibrate_backbones_gives_every_backbone_and_the_learner_input(data):
     for name, X_learner in inputs.items():
         assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions[name])
     # the sweep adaptation changes the nominal tip, not the rest of the learner input
-    assert_array_equal(inputs["PDL"].drop(columns=list(BACKBONE_COLUMNS)),
-                       inputs["PDL+adapt"].drop(columns=list(BACKBONE_COLUMNS)))
+    pd.testing.assert_frame_equal(inputs["PDL"].drop(columns=list(BACKBONE_COLUMNS)),
+                                  inputs["PDL+adapt"].drop(columns=list(BACKBONE_COLUMNS)))
     assert not np.allclose(predictions["PDL"], predictions["PDL+adapt"])
     only, _ = calibrate_backbones(Xr, methods=["PDL"])
     assert list(only) == ["PDL"]
-    assert_array_equal(only["PDL"], inputs["PDL"])
+    pd.testing.assert_frame_equal(only["PDL"], inputs["PDL"])
