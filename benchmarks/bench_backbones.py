@@ -6,6 +6,12 @@ prints mean per-run RMSE per catheter and pooled, the share of runs where PDL
 beats PCC, and the median run-bin RMSE by motor-input magnitude (10-degree
 bins, as the paper's Fig. 5(b)).
 
+The summary also gives, per catheter and pooled over the same runs, the
+backbones' sweep-fit RMSE (``rmse_mm`` of ``calibrate``) and, with
+``--hysteresis play``, the mean half-width of the play identified on each
+run's sweep (deg); ``--hysteresis play`` calibrates both backbones with
+``hysteresis="play"``.
+
 With ``--one-run`` it times instead, on the first run of the benchmark
 (one catheter), ``predict`` (calibration included) and the evaluation of the
 calibrated backbone on the run's rows (``pcc_tip``, ``pdl_tip``): the best of
@@ -17,6 +23,7 @@ Usage::
 
     python benchmarks/bench_backbones.py                 # default benchmark (play)
     python benchmarks/bench_backbones.py --mechanism all # the three mechanisms
+    python benchmarks/bench_backbones.py --hysteresis play  # backbones with a play
     python benchmarks/bench_backbones.py --one-run       # times on one run
     NUMBA_DISABLE_JIT=1 python benchmarks/bench_backbones.py --one-run
 """
@@ -46,21 +53,32 @@ def magnitude_bins(X, y, nominal, runs):
     return per_bin.groupby("bin").median().rename(lambda b: f"{int(10 * b)}-{int(10 * b + 10)}")
 
 
-def evaluate(mechanism, n_catheters, random_state, n_jobs):
+def evaluate(mechanism, n_catheters, random_state, n_jobs, hysteresis=None):
+    """Scores of both backbones on the bent settings of a benchmark.
+
+    Returns the summary (rows ``PCC``, ``PDL``: motion RMSE; ``PCC sweep``,
+    ``PDL sweep``: sweep-fit RMSE; ``PCC width``, ``PDL width``: play
+    half-width in deg; columns: catheters and ``pooled``), the magnitude
+    bins, the share of runs where PDL beats PCC, the noise floor and the
+    calibration times (s).
+    """
     data = make_benchmark(n_catheters=n_catheters, mechanism=mechanism, random_state=random_state)
     X, y = data.X, data.y
     bent = data.runs.loc[data.runs["bend_level"] != "straight", "run"].to_numpy()
     per_run, bins, times = {}, {}, {}
-    for name, est in (("PCC", PCCBackbone(n_jobs=n_jobs)), ("PDL", PDLBackbone(n_jobs=n_jobs))):
+    for name, Est in (("PCC", PCCBackbone), ("PDL", PDLBackbone)):
         start = time.perf_counter()
-        nominal = est.fit(X).predict(X)
+        calibration = Est(hysteresis=hysteresis, n_jobs=n_jobs).fit(X).calibrate(X)
         times[name] = time.perf_counter() - start
-        per_run[name] = per_run_rmse(y, nominal, X).loc[bent]
-        bins[name] = magnitude_bins(X, y, nominal, bent)
+        per_run[name] = per_run_rmse(y, calibration.nominal, X).loc[bent]
+        per_run[f"{name} sweep"] = calibration.table.loc[bent, "rmse_mm"]
+        per_run[f"{name} width"] = calibration.table.loc[bent, "play_width_deg"]
+        bins[name] = magnitude_bins(X, y, calibration.nominal, bent)
     table = pd.DataFrame(per_run)
     table["catheter"] = data.runs.set_index("run").loc[table.index, "catheter"].to_numpy()
-    summary = table.groupby("catheter")[["PCC", "PDL"]].mean().T
-    summary["pooled"] = table[["PCC", "PDL"]].mean()
+    columns = list(per_run)
+    summary = table.groupby("catheter")[columns].mean().T
+    summary["pooled"] = table[columns].mean()
     return summary, pd.DataFrame(bins).T, (table["PDL"] < table["PCC"]).mean(), data.noise_floor, times
 
 
@@ -74,14 +92,16 @@ def _best_of(n, func, *args):
     return min(times)
 
 
-def one_run_times(random_state):
+def one_run_times(random_state, hysteresis=None):
     """Print the times of ``predict`` and of the tip evaluation on one run."""
     X = make_benchmark(n_catheters=1, n_runs=1, random_state=random_state).X
     run = X[(X["run"] == X["run"].iloc[0]).to_numpy()]
     q = run[["q1", "q2"]].to_numpy()
     flag = os.environ.get("NUMBA_DISABLE_JIT", "unset")
-    print(f"run {run['run'].iloc[0]} ({len(run)} rows); NUMBA_DISABLE_JIT={flag}; best of 7 calls")
-    for est, tip in ((PCCBackbone(), pcc_tip), (PDLBackbone(), pdl_tip)):
+    print(f"run {run['run'].iloc[0]} ({len(run)} rows); NUMBA_DISABLE_JIT={flag}; "
+          f"hysteresis={hysteresis}; best of 7 calls")
+    for est, tip in ((PCCBackbone(hysteresis=hysteresis), pcc_tip),
+                     (PDLBackbone(hysteresis=hysteresis), pdl_tip)):
         calibration = est.fit(X).calibrate(run)  # compiles (or loads) the loop over the rows
         params = calibration.params[run["run"].iloc[0]]
         predict_s = _best_of(7, est.predict, run)
@@ -96,18 +116,25 @@ def main():
     parser.add_argument("--n-catheters", type=int, default=4)
     parser.add_argument("--random-state", type=int, default=0)
     parser.add_argument("--n-jobs", type=int, default=2)
+    parser.add_argument("--hysteresis", default="none", choices=["none", "play"],
+                        help="the backbones' hysteresis parameter (none: None)")
     parser.add_argument("--one-run", action="store_true",
                         help="time predict and the tip evaluation on one run instead")
     args = parser.parse_args()
+    hysteresis = None if args.hysteresis == "none" else args.hysteresis
     if args.one_run:
-        one_run_times(args.random_state)
+        one_run_times(args.random_state, hysteresis)
         return
     mechanisms = MECHANISMS if args.mechanism == "all" else (args.mechanism,)
     pd.set_option("display.width", 120)
     for mechanism in mechanisms:
-        summary, bins, frac, floor, times = evaluate(mechanism, args.n_catheters, args.random_state, args.n_jobs)
-        print(f"\n== mechanism={mechanism}: mean per-run RMSE over motion rows, bent settings (mm)")
-        print(summary.round(2).to_string())
+        summary, bins, frac, floor, times = evaluate(mechanism, args.n_catheters, args.random_state,
+                                                     args.n_jobs, hysteresis)
+        print(f"\n== mechanism={mechanism}, hysteresis={hysteresis}: mean per-run RMSE over motion "
+              "rows, bent settings (mm)")
+        print(summary.loc[["PCC", "PDL"]].round(2).to_string())
+        print("sweep fit (calibration rmse_mm, mm) and play half-width (deg), mean over the same runs:")
+        print(summary.drop(index=["PCC", "PDL"]).round(2).to_string())
         print("paper (real catheters):")
         print(pd.DataFrame(PAPER).T.to_string())
         print(f"PDL better than PCC on {frac:.0%} of runs; sensor-noise floor {floor:.2f} mm")

@@ -432,7 +432,7 @@ def test_calibrate_returns_what_predict_uses_and_keeps_nothing(Est, data, refere
     est = Est().fit(X)
     state = joblib.hash(vars(est))
     calibration = est.calibrate(X)
-    assert set(calibration) == {"table", "params", "nominal"}
+    assert set(calibration) == {"table", "params", "play_widths", "nominal"}
     assert_array_equal(calibration.nominal, reference[Est])
     assert list(calibration.table.index) == list(calibration.params) == _runs(X)
     assert joblib.hash(vars(est)) == state

@@ -2,7 +2,8 @@
 
 The central check: after ``start`` on a run's sweep, stepping through the
 run's motion samples one at a time gives what ``Pipeline.predict`` gives for
-that run, for every backbone (PCC, PDL) and residual (NoResidual, MLP, GRU).
+that run, for every backbone (PCC, PDL, each also with the play of
+``hysteresis="play"`` in front) and residual (NoResidual, MLP, GRU).
 The float64 step path is compared with ``predict`` run in float64
 (``module_.double()``) at 1e-9 mm, and with the float32 ``predict`` as
 fitted at the documented float32 tolerance. Then the per-sample backbone
@@ -12,6 +13,7 @@ The networks are tiny and train for one epoch on two shortened runs.
 """
 
 import copy
+import importlib.util
 import os
 import pickle
 import subprocess
@@ -27,7 +29,7 @@ from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
 from sklearn.utils._param_validation import InvalidParameterError
 
-from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip
+from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip, play_operator
 from skcath.datasets import benchmark_catheter, make_benchmark, simulate_run
 from skcath.exceptions import PipelineChangedWarning
 from skcath.frames import sweep_frame
@@ -45,6 +47,12 @@ CHANNELS = ["q1", "q2", "tau1", "tau2"]
 FLOAT32_TOL_MM = 1e-4
 # float64 predict vs the float64 step
 FLOAT64_TOL_MM = 1e-9
+TIPS = {PCCBackbone: pcc_tip, PDLBackbone: pdl_tip}
+ENGINES = [
+    "numpy",
+    pytest.param("numba", marks=pytest.mark.skipif(importlib.util.find_spec("numba") is None,
+                                                   reason="the numba engine needs numba")),
+]
 
 
 def _shorten(X, settings, n_motion):
@@ -105,6 +113,29 @@ def pipelines(data, transformed):
                 residual = _tiny(Est, **params).fit(Xb, y)
             cache[key] = Pipeline([("backbone", backbone), ("residual", residual)])
         return cache[key]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def played(data):
+    """Lazily built fitted pipelines whose backbone plays the motor angles (``hysteresis="play"``).
+
+    ``played(Backbone, kind)`` gives the pipeline and its backbone's output on
+    the test run.
+    """
+    X, y, X_run = data
+    backbones, cache = {}, {}
+
+    def get(Backbone, kind):
+        if Backbone not in backbones:
+            backbone = Backbone(hysteresis="play").fit(X)
+            backbones[Backbone] = (backbone, backbone.transform(X), backbone.transform(X_run))
+        backbone, Xb, Xb_run = backbones[Backbone]
+        if (Backbone, kind) not in cache:
+            residual = NoResidual() if kind == "none" else _tiny(GRUResidual)
+            cache[Backbone, kind] = Pipeline([("backbone", backbone), ("residual", residual.fit(Xb, y))])
+        return cache[Backbone, kind], Xb_run
 
     return get
 
@@ -177,6 +208,32 @@ def test_step_matches_predict_for_gru_variants(data, pipelines, run_nominal, par
     tips = _stream(OnlineEstimator(pipe).start(sweep), samples)
     expected64 = _float64(pipe)["residual"].predict(run_nominal[PDLBackbone])[motion]
     assert_allclose(tips, expected64, rtol=0, atol=FLOAT64_TOL_MM)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize("Backbone", [PCCBackbone, PDLBackbone])
+@pytest.mark.parametrize("kind", ["none", "gru"])
+def test_step_with_a_play_matches_predict(data, played, Backbone, kind, engine):
+    """With hysteresis="play" the step plays (q1, q2) from the sweep's end, as predict does."""
+    _, _, X_run = data
+    pipe, Xb_run = played(Backbone, kind)
+    sweep, samples, motion = _split(X_run)
+    est = OnlineEstimator(pipe, engine=engine).start(sweep)
+    assert est.engine_ == engine
+    width = pipe["backbone"].calibrate(X_run).play_widths[est.run_]
+    assert 0.0 < est.play_width_ == width <= 20.0
+    q_sweep = sweep[["q1", "q2"]].to_numpy()
+    assert_allclose(est.play_state_, play_operator(q_sweep, width)[-1], rtol=0, atol=0)
+    tips = _stream(est, samples)
+    expected64 = _float64(pipe).steps[-1][1].predict(Xb_run)[motion]
+    assert_allclose(tips, expected64, rtol=0, atol=FLOAT64_TOL_MM)
+    assert_allclose(tips, pipe.predict(X_run)[motion], rtol=0, atol=FLOAT32_TOL_MM)
+    # the play matters here: the backbone on the angles as they are is elsewhere
+    nominal = Xb_run[["b_x", "b_y", "b_z"]].to_numpy()[motion]
+    raw = TIPS[Backbone](samples[:, :2], est.backbone_params_)
+    assert np.abs(nominal - raw).max() > 0.1
+    # reset starts the play again from the sweep's end
+    assert_allclose(_stream(est.reset(), samples[:50]), tips[:50], rtol=0, atol=0)
 
 
 def test_backbone_alone_pipeline(data, transformed):

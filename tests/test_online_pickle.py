@@ -5,7 +5,8 @@ nominal tip as views into the kernels' buffers. A pickle must carry that
 state: the loaded copy steps on exactly as the original would, ``reset``
 of the copy resets the state the kernel uses, and ``nominal_`` keeps
 following the steps. Checked on both engines, for the GRU (one and two
-layers), the MLP and the backbone alone. A pickle holds the step ``start``
+layers), the MLP, the backbone alone and a backbone with a play in front
+(whose state travels too). A pickle holds the step ``start``
 took from the pipeline: pickled after the pipeline was refit, the copy
 steps as the original does (and warns that the pipeline changed).
 
@@ -14,7 +15,6 @@ are those of ``test_online.py``.
 """
 
 import copy
-import importlib.util
 import pickle
 
 import numpy as np
@@ -25,22 +25,14 @@ from skcath.backbones import PCCBackbone, PDLBackbone
 from skcath.exceptions import PipelineChangedWarning
 from skcath.online import OnlineEstimator
 from test_online import (  # noqa: F401  (fixtures)
+    ENGINES,
     _split,
     _stream,
     data,
     pipelines,
+    played,
     transformed,
 )
-
-ENGINES = [
-    "numpy",
-    pytest.param(
-        "numba",
-        marks=pytest.mark.skipif(importlib.util.find_spec("numba") is None,
-                                 reason="the numba engine needs numba"),
-    ),
-]
-
 
 @pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize(
@@ -52,14 +44,30 @@ ENGINES = [
 def test_pickled_estimator_steps_on_as_the_original(data, pipelines, engine, Backbone, kind,
                                                     params):
     _, _, X_run = data
+    _check_round_trip(pipelines(Backbone, kind, **params), engine, X_run)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_pickled_estimator_with_a_play_steps_on_as_the_original(data, played, engine):
+    """The state of the play in front of the backbone travels with the pickle."""
+    _, _, X_run = data
+    est, clone = _check_round_trip(played(PDLBackbone, "gru")[0], engine, X_run)
+    assert clone.play_width_ == est.play_width_ > 0.0
+
+
+def _check_round_trip(pipe, engine, X_run):
+    """A pickle taken after 40 steps steps on, resets and pickles again as the original.
+
+    Returns the original estimator and its clone after those checks.
+    """
     sweep, samples, _ = _split(X_run)
-    pipe = pipelines(Backbone, kind, **params)
     est = OnlineEstimator(pipe, engine=engine).start(sweep)
     _stream(est, samples[:40])
     clone = pickle.loads(pickle.dumps(est))
     assert clone.engine_ == est.engine_ == engine
     assert clone.n_steps_ == 40
     assert_allclose(clone.nominal_, est.nominal_, rtol=0, atol=0)
+    assert_allclose(clone.play_state_, est.play_state_, rtol=0, atol=0)
     # the state travelled: the next steps agree exactly
     ahead = _stream(est, samples[40:80])
     assert_allclose(_stream(clone, samples[40:80]), ahead, rtol=0, atol=0)
@@ -71,6 +79,7 @@ def test_pickled_estimator_steps_on_as_the_original(data, pipelines, engine, Bac
     # a second pickle of the original, which the first one left alone
     again = pickle.loads(pickle.dumps(est))
     assert_allclose(_stream(again, samples[80:90]), _stream(est, samples[80:90]), rtol=0, atol=0)
+    return est, clone
 
 
 def test_pickled_gru_state_is_not_the_start_state(data, pipelines):

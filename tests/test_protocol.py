@@ -18,11 +18,13 @@ from sklearn.utils._param_validation import InvalidParameterError
 from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from skcath.metrics import error_cdf, paired_reduction, per_run_rmse
 from skcath.protocol import (
+    ADAPTED_METHOD,
     BUDGET_METHODS,
     COMPARISONS,
     FULL,
     LEARNER_COLUMNS,
     LOCO_METHOD,
+    LOCO_METHODS,
     MAIN_METHODS,
     METHODS,
     PROPOSED_METHOD,
@@ -31,6 +33,7 @@ from skcath.protocol import (
     TORQUE_CONTEXT,
     VARIANTS,
     Schedule,
+    backbone_method,
     calibrate_backbones,
     compute_tables,
     format_report,
@@ -480,6 +483,39 @@ def test_ablation_table_when_ablations_were_run(result):
     assert "Table II." in format_report(tables)
 
 
+def test_sweep_adapted_methods_run_beside_the_paper_methods(data, result):
+    """The adapted variant learns on the played backbone; the paper's methods are unchanged."""
+    X, y = data
+    schedule = tiny_schedule(seeds=(0,), variants=("PDL+GRU", "PDL+GRU+adapt"))
+    adapted = run_protocol(X, y, schedule=schedule, exclude_settings=[EXCLUDED], n_jobs=1)
+    names = {"PCC", "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+GRU (LOCO)",
+             "PDL+GRU+adapt (LOCO)"}
+    assert set(adapted.predictions) == names
+    for name in names:
+        assert all(np.isfinite(p).all() for p in adapted.predictions[name].values()), name
+    # adding the adapted variant leaves the paper's methods as they were, to the bit
+    for name in ("PDL", "PDL+GRU", "PDL+GRU (LOCO)"):
+        assert_array_equal(adapted.predictions[name][None if name == "PDL" else 0],
+                           result.predictions[name][None if name == "PDL" else 0])
+    played = PDLBackbone(hysteresis="play").fit(adapted.X).predict(adapted.X)
+    assert_allclose(adapted.predictions["PDL+adapt"][None], played, rtol=1e-9, atol=1e-9)
+    assert not np.allclose(adapted.predictions["PDL+GRU+adapt"][0], adapted.predictions["PDL+GRU"][0])
+
+    tables = compute_tables(adapted, n_bootstrap=N_BOOTSTRAP, random_state=0)
+    table = tables["adaptation"]
+    assert list(table.index) == [
+        "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+GRU (LOCO)", "PDL+GRU+adapt (LOCO)",
+        "ratio PDL+GRU+adapt / PDL", "ratio PDL+GRU+adapt (LOCO) / PDL+GRU",
+    ]
+    assert_allclose(table.loc["ratio PDL+GRU+adapt / PDL"].to_numpy(float),
+                    (table.loc["PDL+GRU+adapt"] / table.loc["PDL"]).to_numpy(float))
+    assert_allclose(table.loc["PDL+GRU"].to_numpy(float), tables["table_1"].loc["PDL+GRU"].to_numpy(float))
+    paired = tables["paired"].set_index(["comparison", "scope"])
+    assert ("sweep adaptation (catheter held out)", "pooled") in paired.index
+    assert "Sweep adaptation" in format_report(tables)
+    assert "adaptation" not in compute_tables(result, n_bootstrap=N_BOOTSTRAP, random_state=0)
+
+
 def test_loco_table(tables):
     loco = tables["loco"]
     assert list(loco.index) == ["PDL", "PDL+GRU", "PDL+GRU (LOCO)", "runs below 4 mm (LOCO, %)"]
@@ -622,8 +658,9 @@ def test_bad_parameters_name_the_parameter(call, name, result):
 # ---------------------------------------------------------------------------
 def test_registry_describes_every_method_once():
     assert list(METHODS) == [
-        "PCC", "PDL", "PDL+GRU", "PDL+MLP", "PDL+GRU (no torque)", "PDL+GRU (no context)",
-        "PDL+GRU (no torque, no context)", "PDL+GRU (LOCO)",
+        "PCC", "PDL", "PDL+adapt", "PDL+GRU", "PDL+GRU+adapt", "PDL+MLP", "PDL+GRU (no torque)",
+        "PDL+GRU (no context)", "PDL+GRU (no torque, no context)", "PDL+GRU (LOCO)",
+        "PDL+GRU+adapt (LOCO)",
     ]
     assert all(name == method.name for name, method in METHODS.items())
     colours = [method.colour for method in METHODS.values()]
@@ -631,12 +668,26 @@ def test_registry_describes_every_method_once():
     # the learned methods trained within the catheter, with their learner and inputs
     assert dict(VARIANTS) == {
         "PDL+GRU": ("gru", True, True),
+        "PDL+GRU+adapt": ("gru", True, True),
         "PDL+MLP": ("mlp", True, True),
         "PDL+GRU (no torque)": ("gru", False, True),
         "PDL+GRU (no context)": ("gru", True, False),
         "PDL+GRU (no torque, no context)": ("gru", False, False),
     }
     assert METHODS[LOCO_METHOD].loco and LOCO_METHOD not in VARIANTS
+    assert dict(LOCO_METHODS) == {
+        "PDL+GRU (LOCO)": "PDL+GRU", "PDL+GRU+adapt (LOCO)": "PDL+GRU+adapt",
+    }
+    # the adapted methods differ from their paper counterparts by the backbone only
+    assert ADAPTED_METHOD == "PDL+GRU+adapt"
+    assert [name for name, m in METHODS.items() if m.adapt] == [
+        "PDL+adapt", "PDL+GRU+adapt", "PDL+GRU+adapt (LOCO)",
+    ]
+    assert METHODS["PDL+adapt"].backbone_params == {"hysteresis": "play"}
+    assert METHODS["PDL"].backbone_params == {}
+    assert [backbone_method(m) for m in ("PDL+GRU", "PDL+GRU+adapt (LOCO)", "PCC")] == [
+        "PDL", "PDL+adapt", "PCC",
+    ]
     assert PROPOSED_METHOD == "PDL+GRU" and FULL.variants == tuple(VARIANTS)
     # every role lists its methods at distinct positions 0, 1, ...
     for role in ROLES:
@@ -665,6 +716,8 @@ def test_tables_and_figures_read_their_methods_from_the_registry():
         "context (with torque)": ("PDL+GRU (no context)", "PDL+GRU"),
         "context (without torque)": ("PDL+GRU (no torque, no context)", "PDL+GRU (no torque)"),
         "catheter held out -> setting held out": ("PDL+GRU (LOCO)", "PDL+GRU"),
+        "sweep adaptation (setting held out)": ("PDL+GRU", "PDL+GRU+adapt"),
+        "sweep adaptation (catheter held out)": ("PDL+GRU (LOCO)", "PDL+GRU+adapt (LOCO)"),
     }
     from skcath.protocol import _figures
 
@@ -715,9 +768,20 @@ def test_calibrate_backbones_gives_every_backbone_and_the_learner_input(data):
     X, _ = data
     runs = X["run"].isin(X["run"].iloc[[0, -1]]).to_numpy()  # one run of each catheter
     Xr = X[runs].reset_index(drop=True)
-    X_learner, predictions = calibrate_backbones(Xr)
-    assert list(predictions) == ["PCC", "PDL"]
-    assert tuple(X_learner.columns) == LEARNER_COLUMNS
+    inputs, predictions = calibrate_backbones(Xr)
+    assert list(predictions) == ["PCC", "PDL", "PDL+adapt"]
+    assert list(inputs) == ["PDL", "PDL+adapt"]
+    assert all(tuple(X_learner.columns) == LEARNER_COLUMNS for X_learner in inputs.values())
     assert_allclose(predictions["PCC"], PCCBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
     assert_allclose(predictions["PDL"], PDLBackbone().fit(Xr).predict(Xr), rtol=1e-9, atol=1e-9)
-    assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions["PDL"])
+    played = PDLBackbone(hysteresis="play").fit(Xr).predict(Xr)
+    assert_allclose(predictions["PDL+adapt"], played, rtol=1e-9, atol=1e-9)
+    for name, X_learner in inputs.items():
+        assert_array_equal(X_learner[list(BACKBONE_COLUMNS)].to_numpy(), predictions[name])
+    # the sweep adaptation changes the nominal tip, not the rest of the learner input
+    pd.testing.assert_frame_equal(inputs["PDL"].drop(columns=list(BACKBONE_COLUMNS)),
+                                  inputs["PDL+adapt"].drop(columns=list(BACKBONE_COLUMNS)))
+    assert not np.allclose(predictions["PDL"], predictions["PDL+adapt"])
+    only, _ = calibrate_backbones(Xr, methods=["PDL"])
+    assert list(only) == ["PDL"]
+    pd.testing.assert_frame_equal(only["PDL"], inputs["PDL"])

@@ -1,6 +1,7 @@
 """Geometric backbones: nominal tip position from motor angles, calibrated per run."""
 
 from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
+from ._hysteresis import identify_play_width, play_kernel, play_operator
 from ._lm import LMResult, levenberg_marquardt
 from ._pcc import PCCParams, calibrate_pcc, pcc_kernel, pcc_tip
 from ._pdl import PDLParams, calibrate_pdl, pdl_kernel, pdl_tip
@@ -16,9 +17,12 @@ __all__ = [
     "PolynomialBackbone",
     "calibrate_pcc",
     "calibrate_pdl",
+    "identify_play_width",
     "levenberg_marquardt",
     "pcc_kernel",
     "pcc_tip",
     "pdl_kernel",
     "pdl_tip",
+    "play_kernel",
+    "play_operator",
 ]

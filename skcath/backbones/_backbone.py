@@ -17,7 +17,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, _fit_context
 from sklearn.utils import Bunch
-from sklearn.utils._param_validation import Interval
+from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
@@ -25,6 +25,7 @@ from .._base import RecordingsMixin
 from .._runs import run_codes, run_positions
 from .._validation import check_recordings
 from ..sweep import check_sweep_references, find_rays
+from ._hysteresis import identify_play_width, play_operator
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
 
@@ -51,6 +52,18 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         :func:`skcath.sweep.find_rays`.
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per {}.
+    hysteresis : {{None, "play"}}, default=None
+        None: the backbone reads the motor angles as they are. ``"play"``:
+        the motor angles of each run pass through a symmetric play operator
+        (backlash, :func:`play_operator`) before the backbone, its half-width
+        identified on the run's own sweep (the width whose calibration on
+        the played sweep angles has the lowest sweep RMSE; the rays are
+        found from the angles as they are). See
+        :func:`identify_play_width` for the search and ``docs/backbones.rst``
+        for its cost (about 20 calibrations per run).
+    max_play_deg : float, default=20.0
+        Largest half-width of the play searched (deg), in (0, 180]; used
+        with ``hysteresis="play"`` only.
     n_jobs : int, default=None
         Runs calibrated in parallel (joblib); None means 1.
 
@@ -64,7 +77,11 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
 
 
 def _calibrate_run(backbone, run, q, ref, sweep):
-    """Calibrate one run on its sweep rows and evaluate it on all its rows."""
+    """Calibrate one run on its sweep rows and evaluate it on all its rows.
+
+    Returns the nominal tips, the parameters, the solver's summary and the
+    half-width of the play (deg; 0 without hysteresis).
+    """
     q_sweep, ref_sweep = q[sweep], ref[sweep]
     rays = find_rays(
         q_sweep, n_rays=backbone.n_rays, run=run,
@@ -72,8 +89,20 @@ def _calibrate_run(backbone, run, q, ref, sweep):
         ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
     )
     check_sweep_references(ref_sweep, rays, run=run)
-    params, info = backbone._calibrate(q_sweep, ref_sweep, rays)
-    return backbone._evaluate(q, params), params, info
+    if getattr(backbone, "hysteresis", None) is None:
+        params, info = backbone._calibrate(q_sweep, ref_sweep, rays, q_sweep)
+        return backbone._evaluate(q, params), params, info, 0.0
+    fits = {}
+
+    def sweep_rmse(width):
+        played = play_operator(q_sweep, width)
+        fits[float(width)] = backbone._calibrate(played, ref_sweep, rays, q_sweep)
+        return fits[float(width)][1]["rmse_mm"]
+
+    width = identify_play_width(sweep_rmse, backbone.max_play_deg)
+    params, info = fits[width]
+    # the sweep rows come first, so the run's played angles continue the sweep's
+    return backbone._evaluate(play_operator(q, width), params), params, info, width
 
 
 class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstimator):
@@ -83,13 +112,18 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         "n_rays": [Interval(Integral, 3, None, closed="left")],
         "ray_spacing_deg": [None, Interval(Real, 0, 360, closed="right")],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "hysteresis": [None, StrOptions({"play"})],
+        "max_play_deg": [Interval(Real, 0, 180, closed="right")],
         "n_jobs": [None, Integral],
     }
 
-    def __init__(self, *, n_rays=8, ray_spacing_deg=None, max_iter=100, n_jobs=None):
+    def __init__(self, *, n_rays=8, ray_spacing_deg=None, max_iter=100, hysteresis=None,
+                 max_play_deg=20.0, n_jobs=None):
         self.n_rays = n_rays
         self.ray_spacing_deg = ray_spacing_deg
         self.max_iter = max_iter
+        self.hysteresis = hysteresis
+        self.max_play_deg = max_play_deg
         self.n_jobs = n_jobs
 
     @_fit_context(prefer_skip_nested_validation=True)
@@ -129,11 +163,19 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             ``table``: a pandas.DataFrame indexed by run id, in order of
             first appearance, with the fitted parameters (the keys of the
             parameters' ``to_dict``), the sweep RMSE ``rmse_mm`` (mm), the
-            number of solver iterations ``n_iter`` and whether the solver
-            converged (``converged``); ``params``: a dict run id ->
-            parameters (:class:`PCCParams` or :class:`PDLParams`, usable with
-            :func:`pcc_tip` / :func:`pdl_tip`); ``nominal``: the nominal tip
-            position of every row, ndarray of shape (n_samples, 3) (mm).
+            number of solver iterations ``n_iter``, whether the solver
+            converged (``converged``) and the half-width of the play
+            ``play_width_deg`` (deg, 0 without hysteresis); ``params``: a
+            dict run id -> parameters (:class:`PCCParams` or
+            :class:`PDLParams`, usable with :func:`pcc_tip` /
+            :func:`pdl_tip`); ``play_widths``: a dict run id -> half-width
+            of the play (deg); ``nominal``: the nominal tip position of every
+            row, ndarray of shape (n_samples, 3) (mm). With
+            ``hysteresis="play"`` a run's nominal tips are its parameters
+            evaluated on its played angles,
+            ``pdl_tip(play_operator(q, play_widths[run]), params[run])``
+            with ``q`` the motor angles of all its rows (sweep, then
+            motion).
         """
         check_is_fitted(self)
         X, _ = check_recordings(X)
@@ -151,13 +193,14 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             for run, pos in zip(runs, positions)
         )
         nominal = np.empty((len(X), 3))
-        records, params = [], {}
-        for run, pos, (tip, par, info) in zip(runs, positions, results):
+        records, params, widths = [], {}, {}
+        for run, pos, (tip, par, info, width) in zip(runs, positions, results):
             nominal[pos] = tip
             params[run] = par
-            records.append({fmt.RUN: run, **par.to_dict(), **_summary(info)})
+            widths[run] = width
+            records.append({fmt.RUN: run, **par.to_dict(), "play_width_deg": width, **_summary(info)})
         table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
-        return Bunch(table=table, params=params, nominal=nominal)
+        return Bunch(table=table, params=params, play_widths=widths, nominal=nominal)
 
     def predict(self, X):
         """Nominal tip position of every row, each run calibrated on its own sweep.
@@ -280,7 +323,7 @@ class PCCBackbone(_BaseBackbone):
     >>> mean_per_run_rmse(data.y, b, data.X)  # doctest: +SKIP
     """
 
-    def _calibrate(self, q, ref, rays):
+    def _calibrate(self, q, ref, rays, q_raw):
         return calibrate_pcc(
             q, ref, q0=rays.q_neutral, S_m=rays.amplitude, max_iter=self.max_iter, return_info=True
         )
@@ -332,9 +375,10 @@ class PDLBackbone(_BaseBackbone):
     >>> calibration.table[["rmse_mm", "n_iter", "converged"]]  # doctest: +SKIP
     """
 
-    def _calibrate(self, q, ref, rays):
+    def _calibrate(self, q, ref, rays, q_raw):
+        # the neutral rows are found from the motor angles as they are, as the rays
         return calibrate_pdl(
-            q, ref, rays.labels, rays.directions, _at_neutral(q, ref, rays),
+            q, ref, rays.labels, rays.directions, _at_neutral(q_raw, ref, rays),
             q_neutral=rays.q_neutral, max_iter=self.max_iter, return_info=True,
         )
 

@@ -27,7 +27,7 @@ from sklearn.utils.validation import check_is_fitted
 from .. import _format as fmt
 from .._runs import run_codes
 from .._validation import check_recordings
-from ..backbones import PCCBackbone, PCCParams, PDLBackbone
+from ..backbones import PCCBackbone, PCCParams, PDLBackbone, play_operator
 from ..exceptions import PipelineChangedWarning
 from ..frames import sweep_frame
 from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
@@ -279,6 +279,15 @@ class OnlineEstimator(BaseEstimator):
         Run id of the sweep given to :meth:`start`.
     backbone_params_ : PCCParams or PDLParams
         The backbone's calibration on the sweep.
+    play_width_ : float
+        Half-width of the play in front of the backbone (deg), identified
+        on the sweep by a backbone with ``hysteresis="play"``; 0 otherwise.
+    play_state_ : ndarray of shape (2,)
+        Played motor angles of the last step (deg), which the backbone
+        reads: right after :meth:`start` or :meth:`reset`, those of the last
+        sweep sample (:func:`~skcath.backbones.play_operator` on the sweep).
+        With a half-width of 0 the step skips the play (the backbone reads
+        the motor angles as they are) and this stays as :meth:`start` set it.
     rotation_ : ndarray of shape (3, 3) or None
         ``R_SB`` of the sweep (residual learners with ``frame="sweep"``), else None.
     context_ : ndarray of shape (context_size,) or None
@@ -386,6 +395,8 @@ class OnlineEstimator(BaseEstimator):
         tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
         self.run_ = run
         self.backbone_params_ = calibration.params[run]
+        self.play_width_ = float(calibration.play_widths[run])
+        self._play_start = tuple(float(v) for v in play_operator(q, self.play_width_)[-1])
         self.rotation_ = None
         self.context_ = None
         if residual is not None:
@@ -420,11 +431,14 @@ class OnlineEstimator(BaseEstimator):
         ``engine_`` and ``compile_seconds_``; the recurrent state is zero.
         """
         weights, clip, use_torque = self._step_inputs
-        backbone = BackboneStep(self.backbone_params_)
+        # without a play (also when pickled before the play existed) the angles pass as they are
+        backbone = BackboneStep(self.backbone_params_, getattr(self, "play_width_", 0.0),
+                                getattr(self, "_play_start", (0.0, 0.0)))
         self._packed = step_class(backbone, weights, clip, use_torque, self.dtype)
         self._call = self._packed.call
         self._last = self._packed.last  # updated by every step
         self.nominal_ = self._packed.nominal
+        self.play_state_ = self._packed.play
         self.engine_ = self._packed.engine
         self.compile_seconds_ = self._packed.compile_seconds
 
@@ -533,7 +547,7 @@ class OnlineEstimator(BaseEstimator):
     # taken at start and the running state, and loading packs the step again
     # from those (not from the pipeline, which may have been refit since)
     # and restores the state.
-    _RUNTIME = ("_packed", "_call", "_last", "nominal_")
+    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_")
 
     def __getstate__(self):
         state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
@@ -542,6 +556,7 @@ class OnlineEstimator(BaseEstimator):
                 "hidden": [np.array(h) for h in self._packed.hidden],
                 "last": [float(v) for v in self._last],
                 "nominal": np.array(self.nominal_),
+                "play": [float(v) for v in self.play_state_],
             }
         return state
 
@@ -560,6 +575,8 @@ class OnlineEstimator(BaseEstimator):
             h[:] = saved
         self._last[:] = running["last"]
         self.nominal_[:] = running["nominal"]
+        if "play" in running:  # pickled before the play existed: no play, nothing to restore
+            self.play_state_[:] = running["play"]
         self._warn_if_pipeline_changed("was unpickled")
 
     def reset(self):

@@ -1,8 +1,10 @@
 """The streaming step, written once for both engines.
 
 :func:`step` does a whole step of :meth:`~skcath.online.OnlineEstimator.step`
-after the input checks: the backbone's nominal tip for ``(q1, q2)`` (its tip
-kernel, :func:`~skcath.backbones.pcc_kernel` or
+after the input checks: the play in front of the backbone
+(:func:`~skcath.backbones.play_kernel`, for a backbone with
+``hysteresis="play"``), the backbone's nominal tip for the played ``(q1,
+q2)`` (its tip kernel, :func:`~skcath.backbones.pcc_kernel` or
 :func:`~skcath.backbones.pdl_kernel`), the step features
 ``[q1, q2, dq1, dq2, (tau1, tau2,) b_x, b_y, b_z]``, the residual network (GRU
 layers then the tanh head, or the MLP), the clip and the addition of the
@@ -28,13 +30,15 @@ import numpy as np
 from scipy.special import expit
 
 from .._kernel import compiled_as, kernel
-from ..backbones import PCCParams, PDLParams, pcc_kernel, pdl_kernel
+from ..backbones import PCCParams, PDLParams, pcc_kernel, pdl_kernel, play_kernel
 from ._layout import (
     BACKBONE_PCC,
     BACKBONE_PDL,
     F_CLIP,
     F_LAST,
     F_NOMINAL,
+    F_PLAY,
+    F_PLAY_WIDTH,
     F_SCRATCH,
     GRU_CAND,
     GRU_GATES,
@@ -358,14 +362,23 @@ def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
     out : ndarray of shape (3,), float64
         Receives the tip (mm).
     q1, q2 : float
-        Motor angles (deg), finite and in range.
+        Motor angles (deg), finite and in range. The backbone reads them
+        played (a half-width of 0 leaves them as they are, and the play is
+        skipped); the step features read them as they are.
     tau1, tau2 : float
         Drive torques, finite.
     """
+    p1, p2 = q1, q2
+    width = f[F_PLAY_WIDTH]
+    if width > 0.0:
+        p1 = play_kernel(f[F_PLAY], q1, width)
+        p2 = play_kernel(f[F_PLAY + 1], q2, width)
+        f[F_PLAY] = p1
+        f[F_PLAY + 1] = p2
     if meta[M_BACKBONE] == BACKBONE_PCC:
-        bx, by, bz = pcc_kernel(theta, q1, q2)
+        bx, by, bz = pcc_kernel(theta, p1, p2)
     else:
-        bx, by, bz = pdl_kernel(theta, q1, q2)
+        bx, by, bz = pdl_kernel(theta, p1, p2)
     f[F_NOMINAL] = bx
     f[F_NOMINAL + 1] = by
     f[F_NOMINAL + 2] = bz
@@ -404,12 +417,18 @@ def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
 
 
 class BackboneStep:
-    """A run's backbone in the step: its tip kernel and its calibration packed for it.
+    """A run's backbone in the step: its tip kernel, its calibration packed for it, its play.
 
     Parameters
     ----------
     params : PCCParams or PDLParams
         Calibrated parameters of the run.
+    play_width : float, default=0.0
+        Half-width of the play in front of the backbone (deg); 0 without
+        hysteresis.
+    play_start : tuple of 2 float, default=(0.0, 0.0)
+        Played motor angles of the last sweep sample (deg), where the play
+        starts the motion; unused with a half-width of 0.
 
     Attributes
     ----------
@@ -417,9 +436,13 @@ class BackboneStep:
         ``meta[M_BACKBONE]`` of this backbone.
     theta : ndarray
         The packed parameters (``params.pack()``).
+    play_width, play_start
+        As given.
     """
 
-    def __init__(self, params):
+    def __init__(self, params, play_width=0.0, play_start=(0.0, 0.0)):
+        self.play_width = float(play_width)
+        self.play_start = (float(play_start[0]), float(play_start[1]))
         if isinstance(params, PCCParams):
             self.code, self._kernel = BACKBONE_PCC, pcc_kernel
         elif isinstance(params, PDLParams):

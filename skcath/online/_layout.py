@@ -7,8 +7,9 @@ from six arrays made once by :class:`PackedStep` when the run starts:
   then one record per GRU layer (``GRU_*``) and one per layer of the head
   (``HEAD_*``), each holding matrix records (``MAT_*``);
 * ``f`` (float64): the nominal tip of the last step, the last accepted
-  sample ``(q1, q2, tau1, tau2)``, the clip, then float64 scratch for the
-  compiled nonlinearities (``F_*``);
+  sample ``(q1, q2, tau1, tau2)``, the clip, the state and the half-width of
+  the play operator in front of the backbone (0 without hysteresis), then
+  float64 scratch for the compiled nonlinearities (``F_*``);
 * ``theta`` (float64): the backbone's packed parameters
   (:meth:`~skcath.backbones.PCCParams.pack`,
   :meth:`~skcath.backbones.PDLParams.pack`);
@@ -56,8 +57,9 @@ GRU_N_IN, GRU_VECTOR, GRU_GATES, GRU_CAND, GRU_RECORD = offsets(1, 1, MAT_RECORD
 # tanh follows, the matrix [b, W]
 HEAD_SRC, HEAD_DST, HEAD_TANH, HEAD_MATRIX, HEAD_RECORD = offsets(1, 1, 1, MAT_RECORD)
 
-# f: nominal tip of the last step (3), last accepted sample (4), clip (1), scratch
-F_NOMINAL, F_LAST, F_CLIP, F_SCRATCH = offsets(3, 4, 1)
+# f: nominal tip of the last step (3), last accepted sample (4), clip (1), played
+# motor angles of the last step (2, deg), half-width of the play (1, deg), scratch
+F_NOMINAL, F_LAST, F_CLIP, F_PLAY, F_PLAY_WIDTH, F_SCRATCH = offsets(3, 4, 1, 2, 1)
 
 
 class _Arena:
@@ -161,7 +163,8 @@ class PackedStep:
     Parameters
     ----------
     backbone : BackboneStep
-        The backbone of the run: its kind and its packed calibration.
+        The backbone of the run: its kind, its packed calibration and its
+        play (half-width and the played angles of the last sweep sample).
     weights : StepWeights or None
         The residual's folded weights (:func:`~skcath.online._weights.step_weights`),
         or None for the backbone alone.
@@ -185,6 +188,8 @@ class PackedStep:
         Nominal tip of the last step (mm); a view of ``f``.
     last : ndarray of shape (4,)
         Last accepted sample ``(q1, q2, tau1, tau2)``; a view of ``f``.
+    play : ndarray of shape (2,)
+        Played motor angles of the last step (deg); a view of ``f``.
     compile_seconds : float
         Time taken to compile the step (s).
     """
@@ -212,12 +217,16 @@ class PackedStep:
         self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
         self.f = np.zeros(F_SCRATCH + 2 * n_scratch)
         self.f[F_CLIP] = clip
+        self.f[F_PLAY_WIDTH] = backbone.play_width
+        self._play_start = backbone.play_start
         self.theta = backbone.theta
         self.w, self.w32 = store.arrays()
         self.buf = vectors.array()
         self.hidden = [self.buf[at : at + n] for at, n in hidden]
         self.nominal = self.f[F_NOMINAL : F_NOMINAL + 3]
         self.last = self.f[F_LAST : F_LAST + 4]
+        self.play = self.f[F_PLAY : F_PLAY + 2]
+        self.play[:] = self._play_start
         self.call = self._bind()
 
     @staticmethod
@@ -269,7 +278,11 @@ class PackedStep:
         function(*arrays, out, q1, q2, tau1, tau2)
 
     def reset(self, last_sample):
-        """Zero hidden state; ``last_sample`` becomes the previous sample."""
+        """Zero hidden state; ``last_sample`` becomes the previous sample.
+
+        The play goes back to its state after the sweep.
+        """
         for h in self.hidden:
             h[:] = 0.0
         self.last[:] = last_sample
+        self.play[:] = self._play_start

@@ -1,8 +1,9 @@
 """The paper's evaluation protocol end to end: methods, training schedule, tables and figures.
 
 :data:`METHODS` describes every method once (PCC and PDL backbones,
-PDL+GRU, its torque/context ablations, PDL+MLP and the catheter-held-out
-PDL+GRU): learner, inputs, colour and the tables it appears in.
+PDL+GRU, its torque/context ablations, PDL+MLP, the catheter-held-out
+PDL+GRU, and the sweep-adapted PDL and PDL+GRU): learner, inputs, colour and
+the tables it appears in.
 :func:`run_protocol` trains and evaluates every method with settings held
 out within each catheter and with whole catheters held out;
 :func:`compute_tables` turns the held-out predictions into the paper's
@@ -22,8 +23,11 @@ from ._budget import (
     write_budget_results,
 )
 from ._methods import (
+    ADAPTED_BACKBONE,
+    ADAPTED_METHOD,
     COMPARISONS,
     LOCO_METHOD,
+    LOCO_METHODS,
     MAIN_METHODS,
     METHODS,
     PROPOSED_METHOD,
@@ -31,6 +35,7 @@ from ._methods import (
     TORQUE_CONTEXT,
     VARIANTS,
     Method,
+    backbone_method,
     make_learner,
     methods_with_role,
 )
@@ -49,6 +54,8 @@ from ._schedule import FULL, QUICK, Schedule, get_schedule
 from ._tables import compute_tables
 
 __all__ = [
+    "ADAPTED_BACKBONE",
+    "ADAPTED_METHOD",
     "BUDGET_FILES",
     "BUDGET_METHODS",
     "COMPARISONS",
@@ -56,6 +63,7 @@ __all__ = [
     "Fold",
     "LEARNER_COLUMNS",
     "LOCO_METHOD",
+    "LOCO_METHODS",
     "MAIN_METHODS",
     "METHODS",
     "Method",
@@ -65,6 +73,7 @@ __all__ = [
     "Schedule",
     "TORQUE_CONTEXT",
     "VARIANTS",
+    "backbone_method",
     "calibrate_backbones",
     "compute_tables",
     "finetune_models",

@@ -28,7 +28,7 @@ from ..metrics import per_run_rmse
 from ..model_selection import exclusion_set
 from ..sweep import reduce_sweep
 from ._figures import _new_figure
-from ._methods import METHODS, methods_with_role
+from ._methods import METHODS, backbone_method, methods_with_role
 from ._protocol import (
     calibrate_backbones,
     finetune_models,
@@ -52,6 +52,8 @@ BUDGET_METHODS = methods_with_role("budget")
 
 #: Learned method of the experiment, trained on full sweeps.
 (_VARIANT,) = (name for name in BUDGET_METHODS if METHODS[name].learner is not None)
+#: The backbone methods of the budget.
+_BACKBONES = tuple(name for name in BUDGET_METHODS if METHODS[name].learner is None)
 
 #: File names written by :func:`write_budget_results`.
 BUDGET_FILES = {
@@ -283,7 +285,10 @@ def _backbone_budgets(X_eval, y_eval, budgets, n_rays_swept, n_jobs):
     for n_rays, stride in budgets:
         X_b, y_b = reduce_sweep(X_eval, y_eval, n_rays=n_rays, stride=stride, n_rays_swept=n_rays_swept)
         X_b = X_b.reset_index(drop=True)
-        Xt, predictions = calibrate_backbones(X_b, n_rays=n_rays, ray_spacing_deg=spacing, n_jobs=n_jobs)
+        inputs, predictions = calibrate_backbones(
+            X_b, methods=_BACKBONES, n_rays=n_rays, ray_spacing_deg=spacing, n_jobs=n_jobs
+        )
+        Xt = inputs[backbone_method(_VARIANT)]
         for method, pred in predictions.items():
             records.append((n_rays, stride, method, -1, per_run_rmse(y_b, pred, X_b)))
         samples, seconds = _sweep_size(X_b, stride)

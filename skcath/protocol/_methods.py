@@ -30,6 +30,19 @@ Roles
     The method of the motion example, the first one that was run.
 ``budget``
     The methods scored at every calibration budget.
+``adaptation``
+    The sweep-adaptation table: the backbone and the proposed method
+    without and with the hysteresis of each run identified on its own
+    tracked sweep, within the catheter and with the catheter held out.
+
+Sweep adaptation
+----------------
+A method with ``adapt=True`` uses the backbone with
+``hysteresis="play"``: each run's motor angles pass through a play whose
+half-width is identified on the run's own tracked sweep
+(:func:`skcath.backbones.identify_play_width`), and its residual learner is
+trained and evaluated on that backbone's nominal tip. The paper's methods
+keep ``adapt=False``.
 """
 
 from __future__ import annotations
@@ -54,8 +67,12 @@ __all__ = [
     "METHODS",
     "Method",
     "PROPOSED_METHOD",
+    "ADAPTED_BACKBONE",
+    "ADAPTED_METHOD",
+    "LOCO_METHODS",
     "ROLES",
     "TORQUE_CONTEXT",
+    "backbone_method",
     "VARIANTS",
     "comparison_label",
     "make_learner",
@@ -78,7 +95,11 @@ ROLES = (
     "conditioning",
     "example",
     "budget",
+    "adaptation",
 )
+
+#: Backbone parameters of the methods with ``adapt=True``.
+ADAPTED_BACKBONE = MappingProxyType({"hysteresis": "play"})
 
 
 @dataclass(frozen=True)
@@ -101,6 +122,9 @@ class Method:
     loco : bool, default=False
         Trained on the other catheters only: the pretrained model of the
         learned method with the same learner and inputs, never fine-tuned.
+    adapt : bool, default=False
+        The backbone identifies each run's hysteresis on its own tracked
+        sweep (:data:`ADAPTED_BACKBONE`); see *Sweep adaptation* above.
     colour : str, default="tab:gray"
         matplotlib colour of the method in every figure.
     roles : mapping of str to int
@@ -114,6 +138,7 @@ class Method:
     use_torque: bool = True
     use_context: bool = True
     loco: bool = False
+    adapt: bool = False
     colour: str = "tab:gray"
     roles: Mapping[str, int] = field(default_factory=dict)
 
@@ -121,6 +146,11 @@ class Method:
     def is_variant(self):
         """True for a learned method trained within the catheter (a key of :data:`VARIANTS`)."""
         return self.learner is not None and not self.loco
+
+    @property
+    def backbone_params(self):
+        """Parameters of the method's backbone estimator (:data:`ADAPTED_BACKBONE` or none)."""
+        return dict(ADAPTED_BACKBONE) if self.adapt else {}
 
 
 def _registry(*methods):
@@ -140,12 +170,18 @@ def _registry(*methods):
 #: Every method of the protocol, in the order of the results and the tables.
 METHODS = _registry(
     Method("PCC", "pcc", colour="tab:blue", roles={"main": 0, "budget": 0}),
-    Method("PDL", "pdl", colour="tab:orange", roles={"main": 1, "loco": 0, "example": 1, "budget": 1}),
+    Method(
+        "PDL", "pdl", colour="tab:orange",
+        roles={"main": 1, "loco": 0, "example": 1, "budget": 1, "adaptation": 0},
+    ),
+    Method("PDL+adapt", "pdl", adapt=True, colour="tab:cyan", roles={"adaptation": 1}),
     Method(
         "PDL+GRU", "pdl", "gru", colour="tab:green",
         roles={"main": 2, "torque_context": 3, "residual_learners": 1, "loco": 1,
-               "new_catheter": 0, "conditioning": 0, "example": 0, "budget": 2},
+               "new_catheter": 0, "conditioning": 0, "example": 0, "budget": 2,
+               "adaptation": 2},
     ),
+    Method("PDL+GRU+adapt", "pdl", "gru", adapt=True, colour="darkgreen", roles={"adaptation": 3}),
     Method("PDL+MLP", "pdl", "mlp", colour="tab:red", roles={"residual_learners": 0}),
     Method(
         "PDL+GRU (no torque)", "pdl", "gru", use_torque=False, colour="tab:purple",
@@ -161,7 +197,11 @@ METHODS = _registry(
     ),
     Method(
         "PDL+GRU (LOCO)", "pdl", "gru", loco=True, colour="tab:olive",
-        roles={"loco": 2, "new_catheter": 1},
+        roles={"loco": 2, "new_catheter": 1, "adaptation": 4},
+    ),
+    Method(
+        "PDL+GRU+adapt (LOCO)", "pdl", "gru", loco=True, adapt=True, colour="olive",
+        roles={"adaptation": 5},
     ),
 )
 
@@ -202,7 +242,7 @@ MAIN_METHODS = methods_with_role("main")
 
 def _loco_variant(method):
     """The variant whose pretrained models the LOCO ``method`` reports (same learner and inputs)."""
-    fields = ("backbone", "learner", "use_torque", "use_context")
+    fields = ("backbone", "adapt", "learner", "use_torque", "use_context")
     sources = [
         name for name, other in METHODS.items()
         if other.is_variant and all(getattr(other, f) == getattr(method, f) for f in fields)
@@ -212,15 +252,57 @@ def _loco_variant(method):
     return sources[0]
 
 
-#: The catheter-held-out method: the pretrained models of :data:`LOCO_VARIANT`.
-(LOCO_METHOD,) = (name for name, method in METHODS.items() if method.loco)
+#: The catheter-held-out methods: name -> the variant whose pretrained models they report.
+LOCO_METHODS = MappingProxyType({
+    name: _loco_variant(method) for name, method in METHODS.items() if method.loco
+})
+
+#: The paper's catheter-held-out method: the pretrained models of :data:`LOCO_VARIANT`.
+(LOCO_METHOD,) = (name for name in LOCO_METHODS if not METHODS[name].adapt)
 
 #: The learned method whose pretrained models are reported as :data:`LOCO_METHOD`.
-LOCO_VARIANT = _loco_variant(METHODS[LOCO_METHOD])
+LOCO_VARIANT = LOCO_METHODS[LOCO_METHOD]
+
+
+@validate_params({"method": [StrOptions(set(METHODS))]}, prefer_skip_nested_validation=True)
+def backbone_method(method):
+    """The backbone-only method whose nominal tip ``method`` uses (itself for a backbone).
+
+    Parameters
+    ----------
+    method : str
+        A name of :data:`METHODS`.
+
+    Returns
+    -------
+    name : str
+        The backbone method with the same backbone and ``adapt``.
+    """
+    spec = METHODS[method]
+    (name,) = (
+        name for name, other in METHODS.items()
+        if other.learner is None and (other.backbone, other.adapt) == (spec.backbone, spec.adapt)
+    )
+    return name
 
 
 def _yes_no(flag):
     return "Yes" if flag else "No"
+
+
+def _adapted(name):
+    """The method that is ``name`` with sweep adaptation, or None."""
+    spec = METHODS[name]
+    fields = ("backbone", "learner", "use_torque", "use_context", "loco")
+    matches = [
+        other_name for other_name, other in METHODS.items()
+        if other.adapt and all(getattr(other, f) == getattr(spec, f) for f in fields)
+    ]
+    return matches[0] if matches else None
+
+
+#: The proposed method with sweep adaptation (None if the registry has none).
+ADAPTED_METHOD = _adapted(PROPOSED_METHOD)
 
 
 #: Table II: (torque, context) -> method.
@@ -254,6 +336,11 @@ def _comparisons():
     for other in (True, False):
         pairs[f"context ({'with' if other else 'without'} torque)"] = (grid[other, False], grid[other, True])
     pairs["catheter held out -> setting held out"] = (LOCO_METHOD, LOCO_VARIANT)
+    adapted = {name: spec for name, spec in METHODS.items() if spec.adapt and spec.learner}
+    for name, spec in adapted.items():
+        plain = LOCO_METHOD if spec.loco else PROPOSED_METHOD
+        scope = "catheter held out" if spec.loco else "setting held out"
+        pairs[f"sweep adaptation ({scope})"] = (plain, name)
     return MappingProxyType(pairs)
 
 

@@ -34,7 +34,15 @@ from ..model_selection import (
     SettingGroupKFold,
     exclusion_set,
 )
-from ._methods import BACKBONE_METHODS, BACKBONES, LOCO_METHOD, LOCO_VARIANT, METHODS, make_learner
+from ._methods import (
+    ADAPTED_BACKBONE,
+    BACKBONE_METHODS,
+    BACKBONES,
+    LOCO_METHODS,
+    METHODS,
+    backbone_method,
+    make_learner,
+)
 from ._schedule import SCHEDULE_CONSTRAINT, get_schedule
 
 __all__ = [
@@ -120,13 +128,17 @@ def _run_tasks(tasks, n_tasks, n_jobs, desc, verbose):
     return out
 
 
-def learner_input(X, **backbone_params):
+def learner_input(X, *, adapt=False, **backbone_params):
     """The input of the residual learners: the recordings and the nominal tip of their backbone.
 
     Parameters
     ----------
     X : pandas.DataFrame
         Recordings in the long format (``docs/data_format.rst``).
+    adapt : bool, default=False
+        The backbone of the adapted methods (:data:`ADAPTED_BACKBONE`: the
+        hysteresis of each run identified on its own tracked sweep) instead
+        of the paper's.
     **backbone_params
         Parameters of the backbone (``n_rays``, ``ray_spacing_deg``,
         ``n_jobs``, ...), calibrated on each run's own sweep.
@@ -138,36 +150,44 @@ def learner_input(X, **backbone_params):
         the backbone columns hold the nominal tip (mm) of the backbone the
         learned methods correct (PDL).
     """
-    backbone = BACKBONES[_LEARNER_BACKBONE](**backbone_params)
+    params = {**(ADAPTED_BACKBONE if adapt else {}), **backbone_params}
+    backbone = BACKBONES[_LEARNER_BACKBONE](**params)
     return backbone.fit(X).transform(X)[list(LEARNER_COLUMNS)]
 
 
-def calibrate_backbones(X, **backbone_params):
-    """Calibrate every backbone on each run's own sweep.
+def calibrate_backbones(X, *, methods=None, **backbone_params):
+    """Calibrate backbones on each run's own sweep.
 
     Parameters
     ----------
     X : pandas.DataFrame
         The recordings.
+    methods : iterable of str, default=None
+        Backbone methods of :data:`METHODS` to calibrate; None calibrates
+        every one (:data:`BACKBONE_METHODS`).
     **backbone_params
         Parameters given to every backbone, as in :func:`learner_input`.
 
     Returns
     -------
-    X_learner : pandas.DataFrame
-        The input of the residual learners (:func:`learner_input`).
+    inputs : dict of str to pandas.DataFrame
+        The input of the residual learners (:func:`learner_input`) for every
+        calibrated backbone method that learned methods correct, by its name
+        (``"PDL"``, ``"PDL+adapt"``).
     predictions : dict of str to ndarray of shape (n_samples, 3)
-        Nominal tip (mm) of every backbone method (``"PCC"``, ``"PDL"``).
+        Nominal tip (mm) of every calibrated backbone method.
     """
-    X_learner = learner_input(X, **backbone_params)
-    predictions = {}
-    for name in BACKBONE_METHODS:
-        backbone = METHODS[name].backbone
-        if backbone == _LEARNER_BACKBONE:
-            predictions[name] = X_learner[list(BACKBONE_COLUMNS)].to_numpy()
+    methods = BACKBONE_METHODS if methods is None else tuple(methods)
+    inputs, predictions = {}, {}
+    for name in methods:
+        spec = METHODS[name]
+        if spec.backbone == _LEARNER_BACKBONE:
+            inputs[name] = learner_input(X, adapt=spec.adapt, **backbone_params)
+            predictions[name] = inputs[name][list(BACKBONE_COLUMNS)].to_numpy()
         else:
-            predictions[name] = BACKBONES[backbone](**backbone_params).fit(X).predict(X)
-    return X_learner, predictions
+            backbone = BACKBONES[spec.backbone](**spec.backbone_params, **backbone_params)
+            predictions[name] = backbone.fit(X).predict(X)
+    return inputs, predictions
 
 
 @validate_params(
@@ -444,25 +464,41 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         evaluated[fold.test] = True
     rows = np.flatnonzero(evaluated)
 
+    variants = tuple(schedule.variants)
+    backbones = [
+        name for name in BACKBONE_METHODS
+        if not METHODS[name].adapt or any(METHODS[v].adapt for v in variants)
+    ]
     if verbose:
-        backbones = " and ".join(BACKBONE_METHODS)
-        tqdm.write(f"calibrating the {backbones} backbones on every run's sweep ...", file=sys.stderr)
-    Xb, backbone_predictions = calibrate_backbones(X, n_jobs=n_jobs)
+        tqdm.write(f"calibrating the {', '.join(backbones)} backbones on every run's sweep ...",
+                   file=sys.stderr)
+    inputs, backbone_predictions = calibrate_backbones(X, methods=backbones, n_jobs=n_jobs)
+    loco = {name: variant for name, variant in LOCO_METHODS.items() if variant in variants}
     # every method and seed gets its slot now, in a fixed order, because the
     # tasks finish in whatever order the workers complete them
     predictions = {name: {None: values} for name, values in backbone_predictions.items()}
-    learned = [*schedule.variants, *([LOCO_METHOD] if LOCO_VARIANT in schedule.variants else [])]
-    for method in learned:
+    for method in (*variants, *loco):
         predictions[method] = {seed: np.full((len(X), 3), np.nan) for seed in schedule.seeds}
 
     stage = dict(n_jobs=n_jobs, verbose=verbose)
-    pretrained = pretrain_models(Xb, y, folds.loco, schedule, predict=(LOCO_VARIANT,), **stage)
     tested = {fold.catheter: fold.test for fold in folds.loco}
-    for (_, seed, catheter), values in pretrained.predictions.items():
-        predictions[LOCO_METHOD][seed][tested[catheter]] = values
-    finetuned = finetune_models(Xb, y, folds.within, schedule, pretrained.models, **stage)
-    for (variant, seed, number), values in finetuned.predictions.items():
-        predictions[variant][seed][folds.within[number].test] = values[0]
+    timings = []
+    for backbone, X_learner in inputs.items():
+        # the learned methods on this backbone's nominal tip
+        group = tuple(v for v in variants if backbone_method(v) == backbone)
+        if not group:
+            continue
+        predict = tuple(v for v in loco.values() if v in group)
+        pretrained = pretrain_models(X_learner, y, folds.loco, schedule, variants=group,
+                                     predict=predict, **stage)
+        by_variant = {variant: name for name, variant in loco.items()}
+        for (variant, seed, catheter), values in pretrained.predictions.items():
+            predictions[by_variant[variant]][seed][tested[catheter]] = values
+        finetuned = finetune_models(X_learner, y, folds.within, schedule, pretrained.models,
+                                    variants=group, **stage)
+        for (variant, seed, number), values in finetuned.predictions.items():
+            predictions[variant][seed][folds.within[number].test] = values[0]
+        timings += pretrained.timings + finetuned.timings
 
     return Bunch(
         X=X.iloc[rows].reset_index(drop=True),
@@ -470,6 +506,6 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
         predictions=_evaluated(predictions, rows),
         schedule=schedule,
         exclude_settings=exclude,
-        timings=pd.DataFrame(pretrained.timings + finetuned.timings),
+        timings=pd.DataFrame(timings),
         elapsed=time.perf_counter() - start,
     )

@@ -20,6 +20,7 @@ TABLE_FILES = {
     "table_2": "table_2_torque_context.csv",
     "residual_learners": "residual_learners.csv",
     "loco": "leave_one_catheter_out.csv",
+    "adaptation": "sweep_adaptation.csv",
     "cdf_at_5mm": "cdf_at_5mm.csv",
     "magnitude": "rmse_by_magnitude.csv",
     "time": "rmse_over_time.csv",
@@ -62,6 +63,15 @@ def _residual_learners_text(table):
             f"runs improved by the {second_learner}: {improved}")
 
 
+def _adaptation_text(table):
+    """The sweep-adaptation table: errors to one decimal (mm), ratios to two."""
+    ratios = [label for label in table.index if str(label).startswith("ratio ")]
+    errors = table.drop(index=ratios).to_string(float_format=lambda v: f"{v:.1f}")
+    ratio_text = table.loc[ratios].to_string(float_format=lambda v: f"{v:.2f}")
+    return ("Sweep adaptation: each run's hysteresis identified on its own tracked sweep "
+            f"(mm)\n{errors}\n{ratio_text}")
+
+
 @validate_params({"tables": [dict], "result": [Bunch, None]}, prefer_skip_nested_validation=True)
 def format_report(tables, result=None):
     """The protocol's tables as text, in the order of the paper.
@@ -99,6 +109,8 @@ def format_report(tables, result=None):
         below = " ".join(f"{c}: {v:.0f}%" for c, v in t.iloc[-1].items())
         parts.append(f"Leave one catheter out: {LOCO_VARIANT} trained on the other catheters only (mm)\n"
                      f"{text}\nruns below 4 mm (LOCO): {below}")
+    if "adaptation" in tables:
+        parts.append(_adaptation_text(tables["adaptation"]))
     parts.append("Samples below 5 mm (%, within-run fractions averaged over runs)\n"
                  + tables["cdf_at_5mm"].to_string(float_format=lambda v: f"{v:.0f}"))
     main = [m for m in MAIN_METHODS if m in tables["magnitude"]]

@@ -22,10 +22,14 @@ from ..metrics import (
     rmse_over_time,
 )
 from ._methods import (
+    ADAPTED_METHOD,
     COMPARISONS,
     LOCO_METHOD,
+    LOCO_METHODS,
     MAIN_METHODS,
+    PROPOSED_METHOD,
     TORQUE_CONTEXT,
+    backbone_method,
     comparison_label,
     methods_with_role,
 )
@@ -190,6 +194,36 @@ def _loco_table(run_rmse, run_rmse_by_seed, info, catheters):
     return table
 
 
+def adaptation_ratios():
+    """The ratios of the sweep-adaptation table: label -> (numerator, denominator) methods.
+
+    The adapted method within the catheter against the backbone the paper's
+    method corrects, and the adapted method with the catheter held out
+    against the paper's method within the catheter (the error a new catheter
+    gets from its sweep alone, against a model trained on that catheter).
+    """
+    if ADAPTED_METHOD is None:
+        return {}
+    (adapted_loco,) = (name for name, v in LOCO_METHODS.items() if v == ADAPTED_METHOD)
+    base = backbone_method(PROPOSED_METHOD)
+    return {
+        f"{ADAPTED_METHOD} / {base}": (ADAPTED_METHOD, base),
+        f"{adapted_loco} / {PROPOSED_METHOD}": (adapted_loco, PROPOSED_METHOD),
+    }
+
+
+def _adaptation_table(run_rmse, catheters):
+    """The methods with and without sweep adaptation and their ratios; None unless both ran."""
+    ratios = adaptation_ratios()
+    needed = {name for pair in ratios.values() for name in pair}
+    if not ratios or not needed <= set(run_rmse["method"]):
+        return None
+    table = _by_catheter(run_rmse, methods_with_role("adaptation"), catheters)
+    for label, (numerator, denominator) in ratios.items():
+        table.loc[f"ratio {label}"] = table.loc[numerator] / table.loc[denominator]
+    return table
+
+
 @validate_params(
     {
         "result": [Bunch],
@@ -215,7 +249,10 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
     tables : dict of pandas.DataFrame
         ``table_1`` (PCC, PDL, PDL+GRU: mean per-run RMSE per catheter and
         pooled, mm), ``table_2`` (torque x context ablation), ``residual_learners``
-        (PDL+MLP vs PDL+GRU), ``loco`` (catheter held out), ``cdf_at_5mm`` (%),
+        (PDL+MLP vs PDL+GRU), ``loco`` (catheter held out), ``adaptation``
+        (PDL and PDL+GRU without and with sweep adaptation, within the
+        catheter and held out, with the ratios of :func:`adaptation_ratios`),
+        ``cdf_at_5mm`` (%),
         ``magnitude`` (median run-bin RMSE per 10 deg bin), ``time`` (mean
         run-bin RMSE per 10 s bin), ``paired`` (paired reductions with 95 %
         setting-cluster intervals), and the long tables the figures use:
@@ -233,6 +270,7 @@ def compute_tables(result, *, n_bootstrap=2000, random_state=0):
         "paired": paired,
         "residual_learners": _residual_learners_table(run_rmse, paired, catheters),
         "loco": _loco_table(run_rmse, long["run_rmse_by_seed"], info, catheters),
+        "adaptation": _adaptation_table(run_rmse, catheters),
     }
     tables.update({key: table for key, table in optional.items() if table is not None})
 
