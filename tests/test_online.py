@@ -623,15 +623,18 @@ def reswept():
     return first, tracked.drop(columns=REFERENCE), tracked, after.iloc[: n_sweep + 200]
 
 
-def _kept_frame(recording, backbone, params):
-    """``recording`` with the backbone columns of the calibration ``params``: what a motor-only re-sweep steps."""
+def _kept_frame(recording, backbone, params, play_width=0.0):
+    """``recording`` with the backbone columns of the calibration ``params``: what a motor-only re-sweep steps.
+
+    With a ``play_width`` (deg), the motor angles of the recording pass through that play first.
+    """
     evaluate = pdl_tip if isinstance(backbone, PDLBackbone) else pcc_tip
-    nominal = evaluate(recording[["q1", "q2"]].to_numpy(), params)
+    nominal = evaluate(play_operator(recording[["q1", "q2"]].to_numpy(), play_width), params)
     return recording.assign(b_x=nominal[:, 0], b_y=nominal[:, 1], b_z=nominal[:, 2])
 
 
 @pytest.mark.parametrize("Backbone", [PCCBackbone, PDLBackbone])
-@pytest.mark.parametrize("engine", ["numpy", "numba"])
+@pytest.mark.parametrize("engine", ENGINES)
 def test_resweep_keeps_the_calibration_and_renews_the_context(pipelines, reswept, Backbone, engine):
     first, motor_only, _, after = reswept
     pipe = pipelines(Backbone, "gru")
@@ -654,6 +657,34 @@ def test_resweep_keeps_the_calibration_and_renews_the_context(pipelines, reswept
     tips = _stream(est, after.loc[motion, CHANNELS].to_numpy())
     expected = _float64(pipe)["residual"].predict(frame)[motion]
     assert_allclose(tips, expected, rtol=0, atol=FLOAT64_TOL_MM)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_resweep_keeps_the_play(played, reswept, engine):
+    """With hysteresis="play", resweep keeps the half-width and plays the new sweep's angles."""
+    first, motor_only, _, after = reswept
+    pipe, _ = played(PDLBackbone, "gru")
+    est = OnlineEstimator(pipe, engine=engine).start(first)
+    kept, width = est.backbone_params_, est.play_width_
+    assert width > 0.0
+    est.resweep(motor_only)
+    assert est.backbone_params_ is kept and est.play_width_ == width
+    q = motor_only[["q1", "q2"]].to_numpy()
+    assert_allclose(est.play_state_, play_operator(q, width)[-1], rtol=0, atol=0)
+    # predict on the new sweep and motion with the kept calibration and play
+    frame = _kept_frame(after, pipe["backbone"], kept, width)
+    motion = (after["phase"] == "motion").to_numpy()
+    nominal = frame.loc[~motion, ["b_x", "b_y", "b_z"]].to_numpy()
+    assert_allclose(est.rotation_, sweep_frame(q, nominal), rtol=0, atol=1e-12)
+    tips = _stream(est, after.loc[motion, CHANNELS].to_numpy())
+    expected = _float64(pipe)["residual"].predict(frame)[motion]
+    assert_allclose(tips, expected, rtol=0, atol=FLOAT64_TOL_MM)
+    # a re-sweep that ends elsewhere moves the play's starting state with it
+    shifted = motor_only.assign(q1=motor_only["q1"] + 2.0)
+    est.resweep(shifted)
+    q_first = first[["q1", "q2"]].to_numpy()
+    assert_allclose(est.play_state_, play_operator(q + [2.0, 0.0], width)[-1], rtol=0, atol=0)
+    assert np.abs(est.play_state_ - play_operator(q_first, width)[-1]).max() > 1.0
 
 
 def test_resweep_never_reads_the_reference(pipelines, reswept):

@@ -188,7 +188,7 @@ def _without_reference(X):
 
 
 def _kept_nominal(params, q):
-    """Nominal tip (mm) of a kept calibration at the motor angles ``q`` (deg), as the step evaluates it."""
+    """Nominal tip (mm) of a kept calibration at the (played) motor angles ``q`` (deg), as the step evaluates it."""
     backbone = BackboneStep(params)
     return np.array([backbone(q1, q2) for q1, q2 in q.tolist()], dtype=np.float64).reshape(-1, 3)
 
@@ -454,12 +454,16 @@ class OnlineEstimator(BaseEstimator):
 
         * the sweep context ``context_`` is encoded from the new sweep;
         * the sweep frame ``rotation_`` is that of the *kept* calibration
-          evaluated on the new sweep's motor angles;
+          (and play) evaluated on the new sweep's motor angles;
         * the neutral motor angles ``q_neutral_`` are found on the new sweep
           (:func:`skcath.sweep.find_rays`, with the backbone's ``n_rays``),
           and ``q_amplitude_`` and ``q_limit_`` follow;
         * the detector, if any, is started again on the new sweep
           (``shaft_changed_`` is False);
+        * with a backbone of ``hysteresis="play"``, the play keeps its
+          half-width ``play_width_`` and starts the motion from its state at
+          the end of the new sweep (the new sweep's motor angles through the
+          kept play);
         * ``backbone_params_`` stays as it is, and the recurrent state
           restarts at zero (as after :meth:`reset`, from the last sample of
           the new sweep).
@@ -520,10 +524,12 @@ class OnlineEstimator(BaseEstimator):
             q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
             run=run,
         )
+        # the kept play (none before the play existed, e.g. unpickled) over the new sweep
+        played = play_operator(q, getattr(self, "play_width_", 0.0))
         rotation = context = None
         if residual is not None:
             if residual.frame == "sweep":
-                rotation = sweep_frame(q, _kept_nominal(self.backbone_params_, q), run=run)
+                rotation = sweep_frame(q, _kept_nominal(self.backbone_params_, played), run=run)
             if residual.use_context:
                 context = residual.encode_context(X, dtype=self.dtype)[0]
         detector = None if self.detector is None else copy.deepcopy(self.detector).start(X)
@@ -532,6 +538,7 @@ class OnlineEstimator(BaseEstimator):
         self.q_neutral_ = np.array(rays.q_neutral, dtype=float)
         self.q_amplitude_, self.q_limit_ = _motor_range(q, self.q_neutral_, self.q_margin)
         self._last_sweep = tuple(float(v) for v in (*q[-1], *tau[-1]))
+        self._play_start = tuple(float(v) for v in played[-1])
         self._qn = tuple(float(v) for v in self.q_neutral_)
         self._limit2 = self.q_limit_ * self.q_limit_
         self._step_inputs = _step_inputs(residual, rotation, context)
