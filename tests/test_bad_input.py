@@ -1131,3 +1131,44 @@ def test_unavailable_device_is_refused_before_training(nominal):
                        r"cannot compute there on this machine; the devices available are "
                        r"\['cpu'"):
         _tiny_gru(device=device).fit(*nominal)
+
+
+# ---------------------------------------------------------------------------
+# shaft recovery: a re-sweep without the tracker (OnlineEstimator.resweep),
+# and a re-sweep asked of a benchmark without a shaft change
+# ---------------------------------------------------------------------------
+def test_resweep_after_a_refit_is_refused(nominal, streaming):
+    """resweep reads the pipeline's encoder: after a refit it refuses and names start(sweep)."""
+    pipe, sweep, _ = streaming
+    pipe = copy.deepcopy(pipe)
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+    context = est.context_.copy()
+    pipe.named_steps["residual"].set_params(random_state=1).fit(*nominal)
+    with pytest.raises(ValueError, match=r"resweep encodes the new sweep with the pipeline's "
+                       r"residual learner and keeps the calibration taken at start\(\), but the "
+                       r"pipeline has been refit or its parameters set since start\(\)\. Call "
+                       r"start\(sweep\) with a tracked sweep"):
+        est.resweep(sweep.drop(columns=REFERENCE))
+    np.testing.assert_array_equal(est.context_, context)
+
+
+def test_resweep_of_another_layout_names_the_rays(streaming):
+    """A re-sweep that is not a sweep of the backbone's rays: the error of find_rays, nothing changed."""
+    pipe, sweep, _ = streaming
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+    context = est.context_.copy()
+    rays = find_rays(sweep[["q1", "q2"]].to_numpy())
+    four = sweep[(rays.labels % 2 == 0) | rays.neutral].drop(columns=REFERENCE)
+    with pytest.raises(ValueError, match=r"Rays missing in the sweep of run .*: found 4 distinct "
+                       r"ray\(s\) .* expected n_rays=8"):
+        est.resweep(four)
+    np.testing.assert_array_equal(est.context_, context)
+    assert est.run_ == str(sweep["run"].iloc[0])
+
+
+def test_resweep_without_a_shaft_change_is_refused(tmp_path):
+    """resweep=True of the simulator needs a shaft change to sweep again after."""
+    with pytest.raises(ValueError, match=r"resweep=True sweeps again after the shaft change; "
+                       r"it needs shaft_change=True"):
+        make_benchmark(n_catheters=1, n_runs=1, resweep=True, data_home=tmp_path)
+    assert not list(tmp_path.iterdir())

@@ -865,6 +865,115 @@ def test_make_benchmark_rejects_bad_shaft_change(tmp_path):
         make_benchmark(n_catheters=1, n_runs=1, shaft_change="yes", data_home=tmp_path)
 
 
+# ---------------------------------------------------------------------------
+# a re-sweep after the shaft change
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def reswept_run():
+    """The run of ``changed_run`` sweeping again at its change: two recorded runs."""
+    return simulate_run(random_state=0, setting_after="S13", change_after_s=45.0, resweep=True)
+
+
+def _rows_of(bunch, run):
+    """Rows of one run in ``bunch``: its frame (ids as strings), y, y_true and sensor poses."""
+    rows = (bunch.X["run"] == run).to_numpy()
+    return _plain_ids(bunch.X[rows]), bunch.y[rows], bunch.y_true[rows], bunch.sensors[rows].to_numpy()
+
+
+def test_resweep_keeps_the_changed_run_up_to_the_change(changed_run, reswept_run):
+    runs = reswept_run.runs
+    assert list(runs["run"]) == ["run-0", "run-0/after"]
+    assert list(runs["setting"]) == ["S01", "S13"]
+    assert pd.isna(runs.loc[0, "before_run"]) and runs.loc[1, "before_run"] == "run-0"
+    assert runs.loc[0, "setting_after"] == "S13" and pd.isna(runs.loc[1, "setting_after"])
+    t_change = changed_run.runs.loc[0, "change_time_s"]
+    assert runs.loc[0, "change_time_s"] == t_change and np.isnan(runs.loc[1, "change_time_s"])
+    # the part before the change: the shaft_change run up to its change, sample for sample
+    X, y, y_true, sensors = _rows_of(reswept_run, "run-0")
+    k = int(np.sum(changed_run.X["t"] < t_change))
+    assert len(X) == k == runs.loc[0, "n_samples"]
+    pd.testing.assert_frame_equal(X, _plain_ids(changed_run.X.iloc[:k]), check_exact=True)
+    assert_array_equal(y, changed_run.y[:k])
+    assert_array_equal(y_true, changed_run.y_true[:k])
+    assert_array_equal(sensors, changed_run.sensors.to_numpy()[:k])
+    check_recordings(reswept_run.X, reswept_run.y)
+
+
+def test_resweep_is_a_run_of_its_own_in_the_new_setting(changed_run, reswept_run):
+    from skcath.backbones import PDLBackbone
+    from skcath.sweep import find_rays
+
+    X, y, _, _ = _rows_of(reswept_run, "run-0/after")
+    first = changed_run.X
+    n_sweep = int(changed_run.runs.loc[0, "n_sweep"])
+    k = int(np.sum(first["t"] < changed_run.runs.loc[0, "change_time_s"]))
+    sweep = (X["phase"] == "sweep").to_numpy()
+    assert sweep[:n_sweep].all() and not sweep[n_sweep:].any()
+    assert (X["setting"] == "S13").all() and (X["catheter"] == "C1").all()
+    # the same 8 rays as the first sweep, with the tracked reference on them
+    q = X[["q1", "q2"]].to_numpy()
+    assert_array_equal(q[:n_sweep], first[["q1", "q2"]].to_numpy()[:n_sweep])
+    rays = find_rays(q[:n_sweep])
+    assert rays.n_rays == 8 and rays.amplitude == pytest.approx(60.0)
+    assert_array_equal(X.loc[sweep, REF_COLUMNS].to_numpy(), y[sweep])
+    assert X.loc[~sweep, REF_COLUMNS].isna().all().all()
+    # then back to where the motors stood at the change, and the rest of the walk
+    q_stop = first[["q1", "q2"]].to_numpy()[k - 1]
+    assert_array_equal(q[n_sweep + 19], q_stop)
+    assert_array_equal(q[n_sweep + 20:], first[["q1", "q2"]].to_numpy()[k:])
+    # on the run's clock: after the change and the return to neutral (not recorded)
+    t = X["t"].to_numpy()
+    assert t[0] > changed_run.runs.loc[0, "change_time_s"]
+    assert_allclose(np.diff(t), 0.1)
+    # its own torques and tips: the new setting's, not the first sweep's
+    tau = X[["tau1", "tau2"]].to_numpy()[:n_sweep]
+    assert np.abs(tau - first[["tau1", "tau2"]].to_numpy()[:n_sweep]).mean() > 2.0
+    calibration = PDLBackbone().fit(reswept_run.X).calibrate(reswept_run.X)
+    assert calibration.table["converged"].all()
+    assert calibration.table["rmse_mm"].max() < 10.0
+
+
+def test_resweep_benchmark(changed_benchmark, tmp_path):
+    data = make_benchmark(
+        n_catheters=1, n_runs=1, shaft_change=True, resweep=True, data_home=tmp_path
+    )
+    runs, changed = data.runs, changed_benchmark.runs
+    assert len(runs) == 2 * len(changed)
+    before = runs[runs["before_run"].isna()].reset_index(drop=True)
+    after = runs[runs["before_run"].notna()].reset_index(drop=True)
+    assert list(before["run"]) == list(changed["run"])
+    assert list(after["run"]) == [f"{run}/after" for run in changed["run"]]
+    assert list(after["before_run"]) == list(changed["run"])
+    assert list(after["setting"]) == list(changed["setting_after"])
+    pd.testing.assert_series_equal(before["change_time_s"], changed["change_time_s"])
+    # every run before its change is the shaft_change run, sample for sample
+    t_change = changed_benchmark.X["run"].map(changed.set_index("run")["change_time_s"]).astype(float)
+    kept = (changed_benchmark.X["t"] < t_change).to_numpy()
+    first = ~data.X["run"].astype(str).str.endswith("/after").to_numpy()
+    pd.testing.assert_frame_equal(
+        _plain_ids(data.X[first]), _plain_ids(changed_benchmark.X[kept]), check_exact=True
+    )
+    assert_array_equal(data.y[first], changed_benchmark.y[kept])
+    check_recordings(data.X, data.y)
+    assert data.key["resweep"] is True and "resweep" not in changed_benchmark.key
+    assert "sweeps again" in data.DESCR
+    # cached under its own key, beside the shaft_change variant's
+    make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, data_home=tmp_path)
+    assert len(list(tmp_path.glob("benchmark-*.npz"))) == 2
+    again = make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, resweep=True, data_home=tmp_path)
+    _assert_same_data(again, data)
+
+
+def test_resweep_needs_a_shaft_change(tmp_path):
+    with pytest.raises(ValueError, match="resweep=True .* needs shaft_change=True"):
+        make_benchmark(n_catheters=1, n_runs=1, resweep=True, data_home=tmp_path)
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="resweep=True .* needs setting_after"):
+        simulate_run(random_state=0, resweep=True)
+    with pytest.raises(ValueError, match="resweep"):
+        simulate_run(random_state=0, setting_after="S05", resweep="yes")
+
+
 def test_unit_spread_narrows_the_unit_parameters_but_not_the_set_up():
     # Simulator version 6: a unit's parameters are draws pulled towards the
     # middle of the family's range by UNIT_SPREAD; the direction-dependent

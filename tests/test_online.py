@@ -15,6 +15,7 @@ The networks are tiny and train for one epoch on two shortened runs.
 import copy
 import importlib.util
 import os
+import pickle
 import subprocess
 import sys
 import warnings
@@ -29,9 +30,10 @@ from sklearn.pipeline import Pipeline
 from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip, play_operator
-from skcath.datasets import make_benchmark
+from skcath.datasets import benchmark_catheter, make_benchmark, simulate_run
 from skcath.exceptions import PipelineChangedWarning
-from skcath.online import OnlineEstimator, calibrate_sweep, export
+from skcath.frames import sweep_frame
+from skcath.online import OnlineEstimator, ShaftChangeDetector, calibrate_sweep, export
 from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
@@ -593,3 +595,196 @@ def test_bad_out_is_refused_before_the_state_moves(data, pipelines):
     assert est.n_steps_ == 0
     for s in samples[:5]:
         assert_allclose(est.step(*s), reference.step(*s), rtol=0, atol=0)
+
+
+# ---------------------------------------------------------------------------
+# re-sweep without the tracker
+# ---------------------------------------------------------------------------
+REFERENCE = ["ref_x", "ref_y", "ref_z"]
+
+
+@pytest.fixture(scope="module")
+def reswept():
+    """A run of C1 in S05 whose shaft moves to S13, then sweeps again.
+
+    Returns the first (tracked) sweep, the re-sweep without its reference
+    columns, the tracked re-sweep, and the first 200 motion rows after the
+    re-sweep (its recording up to there).
+    """
+    data = simulate_run(
+        catheter=benchmark_catheter(1), setting="S05", setting_after="S13", change_after_s=30.0,
+        resweep=True, random_state=1,
+    )
+    X = data.X
+    first = X[((X["run"] == "run-0") & (X["phase"] == "sweep")).to_numpy()]
+    after = X[(X["run"] == "run-0/after").to_numpy()].reset_index(drop=True)
+    n_sweep = int((after["phase"] == "sweep").sum())
+    tracked = after.iloc[:n_sweep]
+    return first, tracked.drop(columns=REFERENCE), tracked, after.iloc[: n_sweep + 200]
+
+
+def _kept_frame(recording, backbone, params, play_width=0.0):
+    """``recording`` with the backbone columns of the calibration ``params``: what a motor-only re-sweep steps.
+
+    With a ``play_width`` (deg), the motor angles of the recording pass through that play first.
+    """
+    evaluate = pdl_tip if isinstance(backbone, PDLBackbone) else pcc_tip
+    nominal = evaluate(play_operator(recording[["q1", "q2"]].to_numpy(), play_width), params)
+    return recording.assign(b_x=nominal[:, 0], b_y=nominal[:, 1], b_z=nominal[:, 2])
+
+
+@pytest.mark.parametrize("Backbone", [PCCBackbone, PDLBackbone])
+@pytest.mark.parametrize("engine", ENGINES)
+def test_resweep_keeps_the_calibration_and_renews_the_context(pipelines, reswept, Backbone, engine):
+    first, motor_only, _, after = reswept
+    pipe = pipelines(Backbone, "gru")
+    est = OnlineEstimator(pipe, engine=engine).start(first)
+    kept, stale_context = est.backbone_params_, est.context_.copy()
+    assert est.resweep(motor_only) is est
+    assert est.backbone_params_ is kept
+    assert est.run_ == "run-0/after" and est.n_steps_ == 0
+    residual = pipe["residual"]
+    expected = residual.encode_context(motor_only.assign(ref_x=np.nan, ref_y=np.nan, ref_z=np.nan),
+                                       dtype="float64")[0]
+    assert_allclose(est.context_, expected, rtol=0, atol=0)
+    assert np.abs(est.context_ - stale_context).max() > 1e-3
+    # what predict gives for the new sweep and motion with the kept calibration's nominal tip
+    frame = _kept_frame(after, pipe["backbone"], kept)
+    motion = (after["phase"] == "motion").to_numpy()
+    q = motor_only[["q1", "q2"]].to_numpy()
+    nominal = frame.loc[~motion, ["b_x", "b_y", "b_z"]].to_numpy()
+    assert_allclose(est.rotation_, sweep_frame(q, nominal), rtol=0, atol=1e-12)
+    tips = _stream(est, after.loc[motion, CHANNELS].to_numpy())
+    expected = _float64(pipe)["residual"].predict(frame)[motion]
+    assert_allclose(tips, expected, rtol=0, atol=FLOAT64_TOL_MM)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_resweep_keeps_the_play(played, reswept, engine):
+    """With hysteresis="play", resweep keeps the half-width and plays the new sweep's angles."""
+    first, motor_only, _, after = reswept
+    pipe, _ = played(PDLBackbone, "gru")
+    est = OnlineEstimator(pipe, engine=engine).start(first)
+    kept, width = est.backbone_params_, est.play_width_
+    assert width > 0.0
+    est.resweep(motor_only)
+    assert est.backbone_params_ is kept and est.play_width_ == width
+    q = motor_only[["q1", "q2"]].to_numpy()
+    assert_allclose(est.play_state_, play_operator(q, width)[-1], rtol=0, atol=0)
+    # predict on the new sweep and motion with the kept calibration and play
+    frame = _kept_frame(after, pipe["backbone"], kept, width)
+    motion = (after["phase"] == "motion").to_numpy()
+    nominal = frame.loc[~motion, ["b_x", "b_y", "b_z"]].to_numpy()
+    assert_allclose(est.rotation_, sweep_frame(q, nominal), rtol=0, atol=1e-12)
+    tips = _stream(est, after.loc[motion, CHANNELS].to_numpy())
+    expected = _float64(pipe)["residual"].predict(frame)[motion]
+    assert_allclose(tips, expected, rtol=0, atol=FLOAT64_TOL_MM)
+    # a re-sweep that ends elsewhere moves the play's starting state with it
+    shifted = motor_only.assign(q1=motor_only["q1"] + 2.0)
+    est.resweep(shifted)
+    q_first = first[["q1", "q2"]].to_numpy()
+    assert_allclose(est.play_state_, play_operator(q + [2.0, 0.0], width)[-1], rtol=0, atol=0)
+    assert np.abs(est.play_state_ - play_operator(q_first, width)[-1]).max() > 1.0
+
+
+def test_resweep_never_reads_the_reference(pipelines, reswept):
+    first, motor_only, tracked, after = reswept
+    samples = after.loc[after["phase"] == "motion", CHANNELS].to_numpy()
+    results = []
+    for sweep in (motor_only, tracked, tracked.assign(ref_x=np.nan, ref_y=np.nan, ref_z=np.nan),
+                  tracked.assign(ref_x=1e6, ref_y=-1e6, ref_z=np.inf)):
+        est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first).resweep(sweep)
+        results.append((est.context_, est.rotation_, est.q_neutral_, _stream(est, samples)))
+    for result in results[1:]:
+        for got, want in zip(result, results[0]):
+            assert_allclose(got, want, rtol=0, atol=0)
+
+
+def test_resweep_on_the_sweep_of_start_is_start(pipelines, reswept):
+    first, _, _, after = reswept
+    samples = after.loc[after["phase"] == "motion", CHANNELS].to_numpy()
+    started = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first)
+    reswept_est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first).resweep(
+        first.drop(columns=REFERENCE)
+    )
+    for name in ("context_", "rotation_", "q_neutral_", "q_amplitude_", "q_limit_"):
+        assert_allclose(getattr(reswept_est, name), getattr(started, name), rtol=0, atol=1e-12)
+    assert_allclose(_stream(reswept_est, samples), _stream(started, samples), rtol=0, atol=1e-9)
+
+
+def test_start_on_the_tracked_resweep_calibrates_again(pipelines, reswept):
+    first, motor_only, tracked, _ = reswept
+    pipe = pipelines(PDLBackbone, "gru")
+    motor = OnlineEstimator(pipe).start(first).resweep(motor_only)
+    full = OnlineEstimator(pipe).start(first).start(tracked)
+    assert_allclose(full.context_, motor.context_, rtol=0, atol=0)  # the same motors and torques
+    new = pipe["backbone"].calibrate(tracked).params["run-0/after"]
+    assert_allclose(full.backbone_params_.coef, new.coef)
+    assert not np.allclose(motor.backbone_params_.coef, new.coef)
+
+
+def test_resweep_of_a_backbone_alone_keeps_its_tips(transformed, reswept):
+    first, motor_only, _, after = reswept
+    backbone = transformed[PDLBackbone][0]
+    est = OnlineEstimator(Pipeline([("backbone", backbone)])).start(first).resweep(motor_only)
+    assert est.context_ is None and est.rotation_ is None
+    motion = (after["phase"] == "motion").to_numpy()
+    expected = _kept_frame(after, backbone, est.backbone_params_).loc[motion, ["b_x", "b_y", "b_z"]]
+    tips = _stream(est, after.loc[motion, CHANNELS].to_numpy())
+    assert_allclose(tips, expected.to_numpy(), rtol=0, atol=FLOAT64_TOL_MM)
+    # the range check follows the new sweep's motor angles
+    q = motor_only[["q1", "q2"]].to_numpy()
+    assert est.q_amplitude_ == pytest.approx(np.linalg.norm(q - est.q_neutral_, axis=1).max())
+
+
+def test_resweep_restarts_the_detector(pipelines, reswept):
+    first, motor_only, _, after = reswept
+    est = OnlineEstimator(pipelines(PDLBackbone, "none"), detector=ShaftChangeDetector()).start(first)
+    for s in after.loc[after["phase"] == "motion", CHANNELS].to_numpy()[:50]:
+        est.step(*s)
+    est.resweep(motor_only)
+    assert est.shaft_changed_ is False and est.detector_.n_steps_ == 0
+    fresh = ShaftChangeDetector().start(motor_only)
+    assert_allclose(est.detector_.coef_, fresh.coef_, rtol=0, atol=0)
+    assert est.detector is not est.detector_ and not hasattr(est.detector, "coef_")
+
+
+def test_resweep_pickles(pipelines, reswept):
+    first, motor_only, _, after = reswept
+    samples = after.loc[after["phase"] == "motion", CHANNELS].to_numpy()
+    est = OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first).resweep(motor_only)
+    _stream(est, samples[:10])
+    loaded = pickle.loads(pickle.dumps(est))
+    assert_allclose(_stream(loaded, samples[10:]), _stream(est, samples[10:]), rtol=0, atol=0)
+
+
+def test_resweep_errors_leave_the_estimator_as_it_was(data, pipelines, reswept):
+    X, y, _ = data
+    first, motor_only, _, after = reswept
+    with pytest.raises(NotFittedError, match="has not been started"):
+        OnlineEstimator(pipelines(PDLBackbone, "gru")).resweep(motor_only)
+    pipe = copy.deepcopy(pipelines(PDLBackbone, "gru"))
+    est = OnlineEstimator(pipe).start(first)
+    context, rotation = est.context_.copy(), est.rotation_.copy()
+    bad = [
+        (after.drop(columns=REFERENCE), "only rows with 'phase' == 'sweep'"),
+        (pd.concat([motor_only, first.drop(columns=REFERENCE)]), "exactly one run"),
+        (motor_only.drop(columns="tau2"), "tau2"),
+        (motor_only.iloc[:1500], "rays"),
+    ]
+    for sweep, match in bad:
+        with pytest.raises(ValueError, match=match):
+            est.resweep(sweep)
+    pipe["residual"].set_params(clip=10.0)
+    with pytest.raises(ValueError, match="refit or its parameters set since start"):
+        est.resweep(motor_only)
+    assert_allclose(est.context_, context, rtol=0, atol=0)
+    assert_allclose(est.rotation_, rotation, rtol=0, atol=0)
+    assert est.run_ == "run-0"
+
+
+def test_resweep_leaves_its_input_unchanged(pipelines, reswept):
+    first, motor_only, _, _ = reswept
+    before = motor_only.copy(deep=True)
+    OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first).resweep(motor_only)
+    pd.testing.assert_frame_equal(motor_only, before, check_exact=True)

@@ -85,17 +85,18 @@ def clear_data_home(data_home=None):
 CHANGE_AFTER_S = (30.0, 90.0)
 
 
-def _draw_change(entropy, setting, settings):
+def _draw_change(entropy, setting, settings, resweep=False):
     """Shaft change of one run: another setting and a time, from their own seed.
 
     The change draws from a child of the run's seed sequence, so the run's
     own draws, and the run up to the change, are those of the unchanged run.
+    ``resweep`` does not change the draws.
     """
     draw_seed, pose_seed = np.random.SeedSequence(entropy, spawn_key=(1,)).spawn(2)
     rng = np.random.default_rng(draw_seed)
     others = [s for s in settings if s.name != setting.name]
     after = others[int(rng.integers(len(others)))]
-    return ShaftChange(after, float(rng.uniform(*CHANGE_AFTER_S)), pose_seed)
+    return ShaftChange(after, float(rng.uniform(*CHANGE_AFTER_S)), pose_seed, resweep)
 
 
 @validate_params(
@@ -143,7 +144,7 @@ def _unit_number(catheter):
     return int(match.group(1))
 
 
-def benchmark_specs(catheters, n_runs=3, random_state=0, shaft_change=False):
+def benchmark_specs(catheters, n_runs=3, random_state=0, shaft_change=False, resweep=False):
     """Run specifications of the benchmark, in catheter, setting, repeat order.
 
     The unit named ``"Ck"`` (see :func:`benchmark_catheter`) and each of its
@@ -152,7 +153,7 @@ def benchmark_specs(catheters, n_runs=3, random_state=0, shaft_change=False):
     subset of a larger one with the same seed, and a modified unit runs the
     same runs as the unit it was made from. With ``shaft_change``, every run
     also gets a :class:`ShaftChange` drawn from its own seed (see
-    :func:`make_benchmark`).
+    :func:`make_benchmark`), with a re-sweep after it when ``resweep``.
     """
     specs = []
     settings = shaft_settings()
@@ -162,7 +163,7 @@ def benchmark_specs(catheters, n_runs=3, random_state=0, shaft_change=False):
             for r in range(n_runs):
                 entropy = [random_state, k, s_idx, r]
                 seed = np.random.SeedSequence(entropy)
-                change = _draw_change(entropy, setting, settings) if shaft_change else None
+                change = _draw_change(entropy, setting, settings, resweep) if shaft_change else None
                 specs.append(
                     RunSpec(f"{cat.name}-{setting.name}-R{r + 1}", cat, setting, r + 1, seed, change)
                 )
@@ -187,6 +188,7 @@ def _benchmark_field(random_state=0):
         "mechanism": [StrOptions(set(MECHANISMS))],
         "random_state": [_Count(0)],
         "shaft_change": ["boolean"],
+        "resweep": ["boolean"],
         "unit_spread": [Interval(Real, 0, 1, closed="both")],
         "run_variation": [dict, None],
         "catheters": [list, tuple, None],
@@ -203,6 +205,7 @@ def make_benchmark(
     mechanism="play",
     random_state=0,
     shaft_change=False,
+    resweep=False,
     unit_spread=UNIT_SPREAD,
     run_variation=None,
     catheters=None,
@@ -245,6 +248,17 @@ def make_benchmark(
         those of the run without a change (same seed). ``runs`` gets the
         columns ``setting_after`` and ``change_time_s`` (time ``t`` of the
         first sample in the new setting, s). Cached separately.
+    resweep : bool, default=False
+        With ``shaft_change``: at the change, every run performs its sweep
+        again in the new setting, then goes on with the rest of its motion
+        (``docs/simulator.rst``, *A shaft change and a re-sweep*). The part
+        after the change is recorded as a run of its own, ``"<run>/after"``
+        (setting: the new one; its sweep rows hold the tracked reference),
+        so that every run still is a sweep followed by motion; the part
+        before it is the ``shaft_change`` run up to the change, sample for
+        sample. ``runs`` gets the column ``before_run`` (the run an
+        ``"<run>/after"`` run continues; None for the others). Cached
+        separately.
     unit_spread : float in [0, 1], default=0.35
         Unit-to-unit spread of the drawn catheter units (see
         :func:`sample_catheter`); 1 draws the units of simulator version 5.
@@ -312,6 +326,10 @@ def make_benchmark(
     True
     """
     check_run_variation(run_variation)  # a bad key fails before any work
+    if resweep and not shaft_change:
+        raise ValueError(
+            "resweep=True sweeps again after the shaft change; it needs shaft_change=True."
+        )
     given = catheters is not None
     if given:
         catheters = _check_catheters(catheters)
@@ -322,7 +340,7 @@ def make_benchmark(
         ]
     key = _cache_key(
         len(catheters), int(n_runs), mechanism, int(random_state), shaft_change,
-        unit_spread=unit_spread, run_variation=run_variation,
+        resweep=resweep, unit_spread=unit_spread, run_variation=run_variation,
         catheters=catheters if given else None,
     )
     path = _cache_path(key, data_home) if cache else None
@@ -331,7 +349,9 @@ def make_benchmark(
         return bunch
 
     start = time.perf_counter()
-    specs = benchmark_specs(catheters, int(n_runs), int(random_state), bool(shaft_change))
+    specs = benchmark_specs(
+        catheters, int(n_runs), int(random_state), bool(shaft_change), bool(resweep)
+    )
     bunch = simulate_runs(
         specs, mechanism=mechanism, field=_benchmark_field(int(random_state)),
         run_variation=run_variation,
@@ -367,7 +387,7 @@ def _check_catheters(catheters):
 
 
 def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
-               unit_spread, run_variation, catheters):
+               resweep=False, unit_spread, run_variation, catheters):
     """What identifies a generated benchmark; the default benchmark keeps its first key."""
     key = {
         "version": SIMULATOR_VERSION,
@@ -378,6 +398,8 @@ def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
     }
     if shaft_change:
         key["shaft_change"] = True
+    if resweep:
+        key["resweep"] = True
     if unit_spread != UNIT_SPREAD:
         key["unit_spread"] = float(unit_spread)
     if run_variation:
@@ -437,6 +459,12 @@ def _describe(bunch, n_catheters, n_runs):
             "The shaft is repositioned to another setting during each run's motion "
             "(runs: setting_after, change_time_s).\n"
             if "change_time_s" in runs
+            else ""
+        )
+        + (
+            "At the change the run sweeps again; the part after it is a run of its own, "
+            "'<run>/after' (runs: before_run).\n"
+            if "before_run" in runs
             else ""
         )
         + f"Sensor-noise floor: {bunch.noise_floor:.2f} mm RMS."

@@ -5,7 +5,13 @@ All angles are motor angles in degrees; trajectories are sampled at ``rate_hz``.
 
 import numpy as np
 
-__all__ = ["min_jerk", "sweep_trajectory", "random_walk_trajectory", "run_protocol"]
+__all__ = [
+    "min_jerk",
+    "sweep_trajectory",
+    "random_walk_trajectory",
+    "run_protocol",
+    "resweep_trajectory",
+]
 
 
 def min_jerk(n):
@@ -197,3 +203,44 @@ def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_d
         )
     q_motion = random_walk_trajectory(rng, n_motion, radius_deg=amplitude_deg)
     return np.concatenate([q_sweep, q_motion]), len(q_sweep)
+
+
+def resweep_trajectory(q, n_sweep, change_index, *, rate_hz=10.0, speed_deg_s=2.4, return_s=2.0):
+    """Motor trajectory of a run after a shaft change with a re-sweep.
+
+    When the shaft is repositioned at sample ``change_index``, the motors
+    return from where they stand to neutral at the sweep's mean speed
+    (trapezoidal velocity profile), perform the run's own sweep
+    ``q[:n_sweep]`` again, move back with one minimum-jerk move of
+    ``return_s`` seconds to where they stood, and go on with the rest of the
+    run's random walk, ``q[change_index:]``.
+
+    Parameters
+    ----------
+    q : ndarray of shape (n, 2)
+        Motor angles of the run (degrees): its sweep, then its random walk.
+    n_sweep : int
+        Number of sweep samples at the start of ``q``.
+    change_index : int
+        First sample in the new shaft setting, ``n_sweep < change_index < n``.
+    rate_hz : float
+        Sampling rate (Hz).
+    speed_deg_s : float
+        Mean speed of the return to neutral (degrees per second).
+    return_s : float
+        Duration of the move from neutral back into the random walk (s).
+
+    Returns
+    -------
+    q_after : ndarray of shape (m, 2)
+        Motor angles from ``change_index`` on (degrees): the return to
+        neutral, the sweep, the move back and the rest of the walk.
+    n_home : int
+        Number of samples of the return to neutral at the start of
+        ``q_after``; the sweep follows them.
+    """
+    stop = np.asarray(q[change_index - 1], dtype=float)
+    n_home = max(1, int(round(np.hypot(*stop) / speed_deg_s * rate_hz)))
+    home = _move(stop, np.zeros(2), n_home, constant_speed)
+    back = _move(np.zeros(2), stop, max(1, int(round(return_s * rate_hz))))
+    return np.concatenate([home, q[:n_sweep], back, q[change_index:]]), n_home

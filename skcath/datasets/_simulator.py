@@ -6,6 +6,7 @@ everything stateless is vectorised over samples.
 
 from dataclasses import dataclass
 from numbers import Integral, Real
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -19,12 +20,15 @@ from ..frames import tip_in_base_frame
 from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
-from ._protocol import run_protocol
+from ._protocol import resweep_trajectory, run_protocol
 from ._sensors import DistortionField, measure_pose
 
 __all__ = ["RUN_VARIATION", "RunSpec", "ShaftChange", "check_run_variation", "simulate_runs", "simulate_run"]
 
 RATE_HZ = 10.0
+
+#: Suffix of the run id of the part of a run after its shaft change and re-sweep.
+AFTER_SUFFIX = "/after"
 
 #: Per-run variation (standard deviations): gain jitter (relative), offset
 #: jitter (deg), slow drift of offsets (deg, time constant s) and of gains
@@ -92,12 +96,20 @@ class ShaftChange:
         Time of the change after the first motion sample (s).
     seed : numpy.random.SeedSequence
         Seed of the base pose after the change (the base of the bending
-        section moves with the shaft).
+        section moves with the shaft); with ``resweep``, its first child
+        seeds the noise and the drift of the part after the change.
+    resweep : bool, default=False
+        Whether the run sweeps again after the change: the motors return to
+        neutral, perform the run's sweep in the new setting and go on with
+        the rest of the motion (``resweep_trajectory`` of
+        ``skcath/datasets/_protocol.py``). The part after the change is then
+        recorded as a run of its own.
     """
 
     setting: ShaftSetting
     after_s: float
     seed: np.random.SeedSequence
+    resweep: bool = False
 
 
 @dataclass(frozen=True)
@@ -122,6 +134,19 @@ def _ou(rng, n, std, tau_s, size=2):
     white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, size))
     white[0] = rng.normal(0.0, std, size=size)
     return lfilter([1.0], [1.0, -phi], white, axis=0)
+
+
+def _ou_from(rng, last, n, std, tau_s):
+    """Continuation of an Ornstein-Uhlenbeck series of shape (n, 2) after its value ``last``."""
+    phi = np.exp(-1.0 / (RATE_HZ * tau_s))
+    white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, 2))
+    out, _ = lfilter([1.0], [1.0, -phi], white, axis=0, zi=phi * np.asarray(last, dtype=float)[None])
+    return out
+
+
+def _resweep_seed(seed):
+    """The first child of a shaft change's seed: the noise and drift after a re-sweep."""
+    return np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, 0), pool_size=seed.pool_size)
 
 
 def _lag(v, tau_s):
@@ -169,9 +194,12 @@ def _draw_run(spec, variation):
     n = len(q)
     cfg = setting_parameters(spec.catheter, spec.setting)
     v = variation
-    offsets = cfg["offsets"] + rng.normal(0.0, v["offset_jitter_deg"], 2)
-    offsets = offsets + _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
-    gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
+    jitter = rng.normal(0.0, v["offset_jitter_deg"], 2)
+    drift = _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
+    offsets = cfg["offsets"] + jitter + drift
+    gain_jitter = rng.normal(0.0, v["gain_jitter"], 2)
+    gain_drift = _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
+    gain_scale = 1.0 + gain_jitter + gain_drift
     draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
     if spec.change is not None:
         # same per-run jitter and drift; only the setting's offsets move
@@ -185,7 +213,36 @@ def _draw_run(spec, variation):
         draw["cfg_after"] = cfg_after
         draw["u_after"] = draw["u"] + (cfg["offsets"] - cfg_after["offsets"])
         draw["change_index"] = k
+        if spec.change.resweep:
+            draw["resweep"] = _draw_resweep(
+                spec, draw, (jitter, drift[k - 1]), (gain_jitter, gain_drift[k - 1]), v
+            )
     return draw
+
+
+def _draw_resweep(spec, draw, offset_state, gain_state, variation):
+    """The part of a run after its shaft change when it sweeps again.
+
+    The motor angles of :func:`resweep_trajectory`; the offsets of the new
+    setting with the run's own jitter, and the slow drifts of the offsets and
+    gains carried on from their values just before the change (the pairs
+    ``offset_state`` and ``gain_state`` hold the jitter and that value);
+    the noise from the change's own seed. ``u`` is the input of the
+    transmission over the whole run: the motor history up to the change
+    with the new setting's offsets (as for a change without a re-sweep),
+    then this part.
+    """
+    k, v = draw["change_index"], variation
+    rng = np.random.default_rng(_resweep_seed(spec.change.seed))
+    q, n_home = resweep_trajectory(draw["q"], draw["n_sweep"], k, rate_hz=RATE_HZ)
+    m = len(q)
+    jitter, drift = offset_state
+    offsets = draw["cfg_after"]["offsets"] + jitter
+    offsets = offsets + _ou_from(rng, drift, m, v["offset_drift_deg"], v["offset_drift_tau_s"])
+    gain_jitter, gain_drift = gain_state
+    gain_scale = 1.0 + gain_jitter + _ou_from(rng, gain_drift, m, v["gain_drift"], v["gain_drift_tau_s"])
+    u = np.concatenate([draw["u_after"][:k], q - offsets])
+    return {"rng": rng, "q": q, "n_home": n_home, "u": u, "gain_scale": gain_scale}
 
 
 def _transmission_params(specs, configs):
@@ -233,6 +290,49 @@ def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
     return a, delta, p_k, cat.pulley_radius * (pos - neg)
 
 
+def _creep_and_lag(cat, v):
+    """The effective tendon input after the slow tendon creep and the lag of the section."""
+    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
+    return _lag(v, cat.tip_lag)
+
+
+def _drive_torque(cat, q, drive, rng):
+    """Measured motor torques (N mm): the tendon torque plus motor friction, noise and rounding."""
+    omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
+    tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
+    tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
+    return np.round(tau / cat.torque_step) * cat.torque_step
+
+
+def _mounted(cat, p_k):
+    """Noise-free tip in the frame of the base sensor (mm)."""
+    return Rotation.from_rotvec(cat.mount_rotvec).apply(p_k - cat.mount_position)
+
+
+def _poses(cat, r_wk, p_wk, p_k, a, delta):
+    """True poses of the tip and base sensors in the tracker frame, the section's base at ``(r_wk, p_wk)``."""
+    mount = Rotation.from_rotvec(cat.mount_rotvec)  # kinematic frame K -> base-sensor frame B
+    n = len(p_k)
+    tip_pos = p_wk + r_wk.apply(p_k)
+    tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
+    base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
+    base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
+    return tip_pos, tip_rot, base_pos, base_rot
+
+
+def _measure(rng, poses, field, dropout_rate):
+    """Measured tip in the base frame and the raw sensor poses, from the true poses."""
+    tip_pos, tip_rot, base_pos, base_rot = poses
+    tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
+    base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
+    if dropout_rate > 0:
+        lost = rng.random(len(tip_pos)) < dropout_rate
+        tip_meas[lost] = np.nan
+        tip_quat[lost] = np.nan
+    y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
+    return y, np.column_stack([tip_meas, tip_quat, base_meas, base_quat])
+
+
 def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     """Kinematics, torque and EM sensors of one run, vectorised over samples.
 
@@ -243,48 +343,64 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     pose of the new setting.
     """
     cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
-    q, n = draw["q"], len(draw["q"])
-    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
-    lagged = _lag(v, cat.tip_lag)
+    lagged = _creep_and_lag(cat, v)
     a, delta, p_k, drive = _mechanics(cat, cfg, lagged, phi, windup, draw["gain_scale"])
     k = draw.get("change_index")
     if k is not None:  # the new setting's mechanics from the change on
         a[k:], delta[k:], p_k[k:], drive[k:] = _mechanics(
             cat, draw["cfg_after"], lagged[k:], phi[k:], windup[k:], draw["gain_scale"][k:]
         )
-    omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
-    tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
-    tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
-    tau = np.round(tau / cat.torque_step) * cat.torque_step
-
-    # base frame and sensors
-    mount = Rotation.from_rotvec(cat.mount_rotvec)  # kinematic frame K -> base-sensor frame B
-    y_true = mount.apply(p_k - cat.mount_position)
-    r_wk, p_wk = _base_pose(rng, spec.setting, variation)
-    tip_pos = p_wk + r_wk.apply(p_k)
-    tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
-    base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
-    base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
+    tau = _drive_torque(cat, draw["q"], drive, rng)
+    y_true = _mounted(cat, p_k)
+    tip_pos, tip_rot, base_pos, base_rot = _poses(
+        cat, *_base_pose(rng, spec.setting, variation), p_k, a, delta
+    )
     if k is not None:  # the base of the bending section moves with the shaft
-        r_b, p_b = _base_pose(
-            np.random.default_rng(spec.change.seed), spec.change.setting, variation
-        )
-        tip_pos[k:] = p_b + r_b.apply(p_k[k:])
-        bend_after = Rotation.from_rotvec(tip_rotvec(a[k:], delta[k:]))
-        tip_rot = Rotation.concatenate([tip_rot[:k], r_b * bend_after])
-        base_pos[k:] = p_b + r_b.apply(cat.mount_position)
-        base_rot = Rotation.concatenate(
-            [base_rot[:k], Rotation.from_quat(np.repeat((r_b * mount.inv()).as_quat()[None], n - k, axis=0))]
-        )
-    tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
-    base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
-    if dropout_rate > 0:
-        lost = rng.random(n) < dropout_rate
-        tip_meas[lost] = np.nan
-        tip_quat[lost] = np.nan
-    y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
-    sensors = np.column_stack([tip_meas, tip_quat, base_meas, base_quat])
+        pose_after = _base_pose(np.random.default_rng(spec.change.seed), spec.change.setting, variation)
+        tip_after, rot_after, base_after, base_rot_after = _poses(cat, *pose_after, p_k[k:], a[k:], delta[k:])
+        tip_pos[k:] = tip_after
+        tip_rot = Rotation.concatenate([tip_rot[:k], rot_after])
+        base_pos[k:] = base_after
+        base_rot = Rotation.concatenate([base_rot[:k], base_rot_after])
+    y, sensors = _measure(rng, (tip_pos, tip_rot, base_pos, base_rot), field, dropout_rate)
     return tau, y, y_true, sensors
+
+
+def _finish_resweep(spec, draw, v, phi, windup, field, dropout_rate, variation):
+    """Kinematics, torque and EM sensors of the part of a run after its change and re-sweep.
+
+    ``v`` is the run's effective tendon input up to the change followed by
+    that of the part after it, and ``phi`` and ``windup`` those of the new
+    setting over the same samples (:func:`_transmission`), so that the creep
+    and the lag of the section carry on through the change. The return to
+    neutral that starts the part is simulated but not returned: the recorded
+    part starts with its sweep.
+    """
+    cat, k, part = spec.catheter, draw["change_index"], draw["resweep"]
+    lagged = _creep_and_lag(cat, v)[k:]
+    a, delta, p_k, drive = _mechanics(
+        cat, draw["cfg_after"], lagged, phi[k:], windup[k:], part["gain_scale"]
+    )
+    tau = _drive_torque(cat, part["q"], drive, part["rng"])
+    pose = _base_pose(np.random.default_rng(spec.change.seed), spec.change.setting, variation)
+    y, sensors = _measure(part["rng"], _poses(cat, *pose, p_k, a, delta), field, dropout_rate)
+    recorded = slice(part["n_home"], None)
+    return tau[recorded], y[recorded], _mounted(cat, p_k)[recorded], sensors[recorded]
+
+
+def _padded(inputs):
+    """Motor inputs of shape (n_i, 2) as one array (n_max, n_runs, 2), each padded with its last value."""
+    u = np.empty((max(len(x) for x in inputs), len(inputs), 2))
+    for j, x in enumerate(inputs):
+        u[: len(x), j] = x
+        u[len(x):, j] = x[-1]
+    return u
+
+
+def _transmission(u, specs, configs, mechanism):
+    """Effective tendon input, friction utilisation and wind-up of padded inputs ``u``."""
+    v, phi = simulate_transmission(u, 1.0 / RATE_HZ, _transmission_params(specs, configs), mechanism)
+    return v, phi, torsional_windup(u, np.array([c["windup"] for c in configs]))
 
 
 def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism):
@@ -300,12 +416,9 @@ def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, length
     for i, j in enumerate(changed):
         u_after[: lengths[j], i] = draws[j]["u_after"]
         u_after[lengths[j]:, i] = draws[j]["u_after"][-1]
-    sub_specs = [specs[j] for j in changed]
-    configs = [draws[j]["cfg_after"] for j in changed]
-    v_after, phi_after = simulate_transmission(
-        u_after, 1.0 / RATE_HZ, _transmission_params(sub_specs, configs), mechanism
+    v_after, phi_after, windup_after = _transmission(
+        u_after, [specs[j] for j in changed], [draws[j]["cfg_after"] for j in changed], mechanism
     )
-    windup_after = torsional_windup(u_after, np.array([c["windup"] for c in configs]))
     for i, j in enumerate(changed):
         k = draws[j]["change_index"]
         v_all[k:, j] = v_after[k:, i]
@@ -313,47 +426,119 @@ def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, length
         windup_all[k:, j] = windup_after[k:, i]
 
 
-def _run_frame(spec, draw, tau, y):
-    """The long-format rows of one simulated run (reference tip on sweep rows only)."""
-    q, n = draw["q"], len(draw["q"])
-    sweep = np.arange(n) < draw["n_sweep"]
-    ref = np.where(sweep[:, None], y, np.nan)
+def _resweep_transmission(v_all, specs, draws, mechanism):
+    """Transmission of every re-swept run over its history and the part after its change.
+
+    Returns, by run index, ``(v, phi, windup)`` over the samples of
+    ``draw["resweep"]["u"]``: ``v`` is the run's own up to the change, then
+    that of the new setting; ``phi`` and ``windup`` are the new setting's
+    (only their part from the change on is used).
+    """
+    swept = [j for j, d in enumerate(draws) if "resweep" in d]
+    if not swept:
+        return {}
+    inputs = [draws[j]["resweep"]["u"] for j in swept]
+    v, phi, windup = _transmission(
+        _padded(inputs), [specs[j] for j in swept], [draws[j]["cfg_after"] for j in swept], mechanism
+    )
+    out = {}
+    for i, j in enumerate(swept):
+        n, k = len(inputs[i]), draws[j]["change_index"]
+        out[j] = (np.concatenate([v_all[:k, j], v[k:n, i]]), phi[:n, i], windup[:n, i])
+    return out
+
+
+class _Recording(NamedTuple):
+    """One recorded run: what its rows in ``X`` and its row in ``runs`` are made of.
+
+    ``start`` is the sample of the simulated run at which the recording
+    starts (its time ``t`` is ``(start + i) / RATE_HZ``); ``columns`` holds
+    the extra columns of its row in ``runs``.
+    """
+
+    run: str
+    setting: ShaftSetting
+    start: int
+    q: np.ndarray
+    n_sweep: int
+    tau: np.ndarray
+    y: np.ndarray
+    y_true: np.ndarray
+    sensors: np.ndarray
+    columns: dict
+
+    def head(self, n):
+        """The recording of the first ``n`` samples."""
+        return self._replace(
+            q=self.q[:n], tau=self.tau[:n], y=self.y[:n], y_true=self.y_true[:n],
+            sensors=self.sensors[:n],
+        )
+
+
+def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
+    """The recordings of one simulated run: the run, or its parts before and after a re-sweep.
+
+    ``finished`` is the output of :func:`_finish_run`; ``swept`` that of
+    :func:`_finish_resweep` for a run that sweeps again after its change,
+    else None. The part after a re-sweep is the run ``"<run>/after"`` in the
+    new setting, whose ``before_run`` names the run.
+    """
+    k = draw.get("change_index")
+    columns = {}
+    if with_change:
+        columns["setting_after"] = None if k is None else spec.change.setting.name
+        columns["change_time_s"] = np.nan if k is None else k / RATE_HZ
+    if with_resweep:
+        columns["before_run"] = None
+    run = _Recording(spec.run, spec.setting, 0, draw["q"], draw["n_sweep"], *finished, columns)
+    if swept is None:
+        return [run]
+    n_home = draw["resweep"]["n_home"]
+    after = _Recording(
+        f"{spec.run}{AFTER_SUFFIX}", spec.change.setting, k + n_home, draw["resweep"]["q"][n_home:],
+        draw["n_sweep"], *swept,
+        {**columns, "setting_after": None, "change_time_s": np.nan, "before_run": spec.run},
+    )
+    return [run.head(k), after]
+
+
+def _run_frame(rec, catheter):
+    """The long-format rows of one recording (reference tip on sweep rows only)."""
+    n = len(rec.q)
+    sweep = np.arange(n) < rec.n_sweep
+    ref = np.where(sweep[:, None], rec.y, np.nan)
     return pd.DataFrame(
         {
-            fmt.CATHETER: spec.catheter.name,
-            fmt.SETTING: spec.setting.name,
-            fmt.RUN: spec.run,
-            fmt.TIME: np.arange(n) / RATE_HZ,
+            fmt.CATHETER: catheter.name,
+            fmt.SETTING: rec.setting.name,
+            fmt.RUN: rec.run,
+            fmt.TIME: (rec.start + np.arange(n)) / RATE_HZ,
             fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
-            "q1": q[:, 0], "q2": q[:, 1],
-            "tau1": tau[:, 0], "tau2": tau[:, 1],
+            "q1": rec.q[:, 0], "q2": rec.q[:, 1],
+            "tau1": rec.tau[:, 0], "tau2": rec.tau[:, 1],
             "ref_x": ref[:, 0], "ref_y": ref[:, 1], "ref_z": ref[:, 2],
         }
     )
 
 
-def _run_row(spec, draw, y, y_true, *, with_change):
-    """The row of one simulated run in the ``runs`` table (noise floor over motion rows, mm)."""
-    n = len(draw["q"])
-    motion = np.arange(n) >= draw["n_sweep"]
-    err = np.linalg.norm(y[motion] - y_true[motion], axis=1)
-    row = {
-        "run": spec.run,
+def _run_row(rec, spec):
+    """The row of one recording in the ``runs`` table (noise floor over motion rows, mm)."""
+    n = len(rec.q)
+    motion = np.arange(n) >= rec.n_sweep
+    err = np.linalg.norm(rec.y[motion] - rec.y_true[motion], axis=1)
+    return {
+        "run": rec.run,
         "catheter": spec.catheter.name,
-        "setting": spec.setting.name,
+        "setting": rec.setting.name,
         "repeat": spec.repeat,
-        "bend_level": spec.setting.level,
-        "bend_direction_deg": spec.setting.direction_deg,
-        "shaft_wrap_deg": spec.setting.bend_deg,
+        "bend_level": rec.setting.level,
+        "bend_direction_deg": rec.setting.direction_deg,
+        "shaft_wrap_deg": rec.setting.bend_deg,
         "n_samples": int(n),
-        "n_sweep": int(draw["n_sweep"]),
+        "n_sweep": int(rec.n_sweep),
         "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
+        **rec.columns,
     }
-    if with_change:
-        k = draw.get("change_index")
-        row["setting_after"] = None if k is None else spec.change.setting.name
-        row["change_time_s"] = np.nan if k is None else k / RATE_HZ
-    return row
 
 
 def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None):
@@ -390,31 +575,31 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     variation = check_run_variation(run_variation)
     draws = [_draw_run(s, variation) for s in specs]
     lengths = np.array([len(d["q"]) for d in draws])
-    n_max = lengths.max()
-    u = np.empty((n_max, len(specs), 2))
-    for j, d in enumerate(draws):
-        u[: lengths[j], j] = d["u"]
-        u[lengths[j]:, j] = d["u"][-1]
-    v_all, phi_all = simulate_transmission(
-        u, 1.0 / RATE_HZ, _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
-    )
-    windup_all = torsional_windup(u, np.array([d["cfg"]["windup"] for d in draws]))
+    u = _padded([d["u"] for d in draws])
+    v_all, phi_all, windup_all = _transmission(u, specs, [d["cfg"] for d in draws], mechanism)
     changed = [j for j, d in enumerate(draws) if "change_index" in d]
     if changed:
         _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism)
+    swept = _resweep_transmission(v_all, specs, draws, mechanism)
 
-    frames, ys, ys_true, sensors, rows = [], [], [], [], []
+    recordings = []
     for j, (spec, d) in enumerate(zip(specs, draws)):
         n = lengths[j]
-        tau, y, y_true, sens = _finish_run(
+        finished = _finish_run(
             spec, d, v_all[:n, j], phi_all[:n, j], windup_all[:n, j], field, dropout_rate,
             variation,
         )
-        frames.append(_run_frame(spec, d, tau, y))
-        ys.append(y)
-        ys_true.append(y_true)
-        sensors.append(sens)
-        rows.append(_run_row(spec, d, y, y_true, with_change=bool(changed)))
+        after = None
+        if j in swept:
+            after = _finish_resweep(spec, d, *swept[j], field, dropout_rate, variation)
+        recordings += [
+            (spec, rec) for rec in _recordings(
+                spec, d, finished, after, with_change=bool(changed), with_resweep=bool(swept)
+            )
+        ]
+    frames = [_run_frame(rec, spec.catheter) for spec, rec in recordings]
+    rows = [_run_row(rec, spec) for spec, rec in recordings]
+    ys, ys_true, sensors = ([getattr(rec, name) for _, rec in recordings] for name in ("y", "y_true", "sensors"))
     X = pd.concat(frames, ignore_index=True)
     for col in (*fmt.ID_COLUMNS, fmt.PHASE):
         X[col] = X[col].astype("category")
@@ -443,6 +628,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
         "setting_after": [ShaftSetting, str, None],
         # a right end of inf, open: the time must be finite
         "change_after_s": [Interval(Real, 0, np.inf, closed="left")],
+        "resweep": ["boolean"],
     },
     prefer_skip_nested_validation=True,
 )
@@ -457,6 +643,7 @@ def simulate_run(
     dropout_rate=0.0,
     setting_after=None,
     change_after_s=60.0,
+    resweep=False,
 ):
     """Simulate one recording: an 8-ray sweep then a 100-step random walk at 10 Hz.
 
@@ -490,6 +677,11 @@ def simulate_run(
     change_after_s : float, default=60.0
         Time of the repositioning after the first motion sample (s); used
         only with ``setting_after``. The motion phase lasts 164-218 s.
+    resweep : bool, default=False
+        With ``setting_after``: at the change, the run performs its sweep
+        again in the new setting, then goes on with the rest of its motion
+        (see :func:`make_benchmark`, ``resweep``). The part after the change
+        is the run ``run + "/after"``.
 
     Returns
     -------
@@ -500,7 +692,8 @@ def simulate_run(
         With ``setting_after``, ``runs`` also has ``setting_after`` and
         ``change_time_s`` (time ``t`` of the first sample in the new
         setting, s). Up to the change, the run is identical to the same run
-        without a change.
+        without a change. With ``resweep``, ``runs`` has two rows and the
+        column ``before_run``.
     """
     root = np.random.SeedSequence(_entropy(random_state))
     seeds = root.spawn(3)
@@ -512,7 +705,11 @@ def simulate_run(
         setting_after = _lookup_setting("setting_after", setting_after)
         if setting_after.name == setting.name:
             raise ValueError(f"setting_after={setting_after.name!r} must differ from setting.")
-        change = ShaftChange(setting_after, float(change_after_s), root.spawn(1)[0])
+        change = ShaftChange(setting_after, float(change_after_s), root.spawn(1)[0], resweep)
+    elif resweep:
+        raise ValueError(
+            "resweep=True sweeps again after the shaft change; it needs setting_after."
+        )
     spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1], change=change)
     dist = DistortionField(seeds[2]) if field else None
     return simulate_runs([spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate)

@@ -31,6 +31,7 @@ from ..backbones import PCCBackbone, PCCParams, PDLBackbone, play_operator
 from ..exceptions import PipelineChangedWarning
 from ..frames import sweep_frame
 from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
+from ..sweep import find_rays
 from ._fast import BackboneStep, NumpyStep
 from ._sample import CHANNELS, real_sample
 from ._weights import fitted_fingerprint, step_weights
@@ -94,9 +95,13 @@ def check_online_pipeline(pipeline):
     return backbone, residual
 
 
-def _check_sweep(sweep):
-    """Checked sweep rows of exactly one run."""
-    X, _ = check_recordings(sweep)
+#: Columns of a sweep recorded without the tracker (:meth:`OnlineEstimator.resweep`).
+MOTOR_SWEEP_COLUMNS = tuple(c for c in fmt.REQUIRED_COLUMNS if c not in fmt.REFERENCE_COLUMNS)
+
+
+def _check_sweep(sweep, columns=fmt.REQUIRED_COLUMNS):
+    """Checked sweep rows of exactly one run, with the columns ``columns``."""
+    X, _ = check_recordings(sweep, columns=columns)
     _, runs = run_codes(X)
     if len(runs) != 1:
         raise ValueError(
@@ -175,6 +180,25 @@ def _step_inputs(residual, rotation, context):
     return step_weights(residual, rotation, context), clip, residual.use_torque
 
 
+def _without_reference(X):
+    """``X`` with its reference tip replaced by NaN columns: what a sweep without the tracker holds."""
+    return X.drop(columns=list(fmt.REFERENCE_COLUMNS), errors="ignore").assign(
+        **{c: np.nan for c in fmt.REFERENCE_COLUMNS}
+    )
+
+
+def _kept_nominal(params, q):
+    """Nominal tip (mm) of a kept calibration at the (played) motor angles ``q`` (deg), as the step evaluates it."""
+    backbone = BackboneStep(params)
+    return np.array([backbone(q1, q2) for q1, q2 in q.tolist()], dtype=np.float64).reshape(-1, 3)
+
+
+def _motor_range(q, q_neutral, q_margin):
+    """Sweep amplitude and largest accepted distance (deg) of the motor angles from neutral."""
+    amplitude = float(np.hypot(*(q - q_neutral).T).max())
+    return amplitude, (math.inf if q_margin is None else (1.0 + q_margin) * amplitude)
+
+
 def _neutral_angles(params):
     """Neutral motor angles (deg) of a calibration."""
     return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
@@ -189,7 +213,11 @@ class OnlineEstimator(BaseEstimator):
     ``(q1, q2, tau1, tau2)``, carrying the recurrent state from call to call.
     Stepping through the motion samples of a run after ``start`` on its sweep
     reproduces ``pipeline.predict`` on the motion rows of that run (see
-    *Notes* for the tolerance).
+    *Notes* for the tolerance). After a shaft change, :meth:`resweep`
+    re-encodes the context from a new sweep of the motors alone, keeping the
+    backbone's calibration; the attributes of the sweep (``run_``,
+    ``rotation_``, ``context_``, ``q_neutral_``, ``q_amplitude_``,
+    ``q_limit_``) are then those of the new sweep.
 
     Parameters
     ----------
@@ -414,6 +442,111 @@ class OnlineEstimator(BaseEstimator):
         self.engine_ = self._packed.engine
         self.compile_seconds_ = self._packed.compile_seconds
 
+    # ------------------------------------------------------------ re-sweep
+    def resweep(self, sweep):
+        """Re-encode the run's context from a sweep without the tracker; keep the calibration.
+
+        After the shaft has been repositioned (for example when the detector
+        raises ``shaft_changed_``), a new sweep recorded with the motors
+        alone, the tracker off, renews what depends on the sweep's motor
+        angles and torques, and keeps the backbone's calibration of the
+        tracked sweep given to :meth:`start`:
+
+        * the sweep context ``context_`` is encoded from the new sweep;
+        * the sweep frame ``rotation_`` is that of the *kept* calibration
+          (and play) evaluated on the new sweep's motor angles;
+        * the neutral motor angles ``q_neutral_`` are found on the new sweep
+          (:func:`skcath.sweep.find_rays`, with the backbone's ``n_rays``),
+          and ``q_amplitude_`` and ``q_limit_`` follow;
+        * the detector, if any, is started again on the new sweep
+          (``shaft_changed_`` is False);
+        * with a backbone of ``hysteresis="play"``, the play keeps its
+          half-width ``play_width_`` and starts the motion from its state at
+          the end of the new sweep (the new sweep's motor angles through the
+          kept play);
+        * ``backbone_params_`` stays as it is, and the recurrent state
+          restarts at zero (as after :meth:`reset`, from the last sample of
+          the new sweep).
+
+        The reference tip is never read. A tracked re-sweep calibrates the
+        backbone again as well: call :meth:`start` with it instead.
+
+        Parameters
+        ----------
+        sweep : pandas.DataFrame
+            The sweep rows (``phase == "sweep"``) of one run in the long
+            format, the same rays as the sweep of :meth:`start`. The
+            reference columns ``ref_x``, ``ref_y``, ``ref_z`` may be absent
+            or NaN.
+
+        Returns
+        -------
+        self : OnlineEstimator
+            Ready for :meth:`step`, with a zero recurrent state.
+
+        Raises
+        ------
+        sklearn.exceptions.NotFittedError
+            Before :meth:`start`.
+        ValueError
+            If the pipeline has been refit or its parameters set since
+            :meth:`start` (its residual would not match the kept
+            calibration), or the sweep is not the sweep of one run. The
+            estimator is then left as it was.
+
+        Notes
+        -----
+        The parameters of the estimator are validated again and used as they
+        are now, as by :meth:`start`. ``docs/shaft_change.rst`` (*Recovering
+        without the tracker*) measures how much of a shaft change's error a
+        motor-only re-sweep removes on the simulated benchmark, against a
+        tracked one.
+        """
+        self._check_started()
+        return self._resweep(sweep)
+
+    @_fit_context(prefer_skip_nested_validation=True)
+    def _resweep(self, sweep):
+        """:meth:`resweep` once the parameters are validated; changes nothing until the sweep is read."""
+        step_class = _step_class(self.engine)
+        if self._pipeline_changed():
+            raise ValueError(
+                "resweep encodes the new sweep with the pipeline's residual learner and keeps "
+                "the calibration taken at start(), but the pipeline has been refit or its "
+                "parameters set since start(). Call start(sweep) with a tracked sweep."
+            )
+        backbone, residual = check_online_pipeline(self.pipeline)
+        X, run = _check_sweep(sweep, columns=MOTOR_SWEEP_COLUMNS)
+        X = _without_reference(X)
+        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
+        tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
+        rays = find_rays(
+            q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
+            run=run,
+        )
+        # the kept play (none before the play existed, e.g. unpickled) over the new sweep
+        played = play_operator(q, getattr(self, "play_width_", 0.0))
+        rotation = context = None
+        if residual is not None:
+            if residual.frame == "sweep":
+                rotation = sweep_frame(q, _kept_nominal(self.backbone_params_, played), run=run)
+            if residual.use_context:
+                context = residual.encode_context(X, dtype=self.dtype)[0]
+        detector = None if self.detector is None else copy.deepcopy(self.detector).start(X)
+
+        self.run_, self.rotation_, self.context_ = run, rotation, context
+        self.q_neutral_ = np.array(rays.q_neutral, dtype=float)
+        self.q_amplitude_, self.q_limit_ = _motor_range(q, self.q_neutral_, self.q_margin)
+        self._last_sweep = tuple(float(v) for v in (*q[-1], *tau[-1]))
+        self._play_start = tuple(float(v) for v in played[-1])
+        self._qn = tuple(float(v) for v in self.q_neutral_)
+        self._limit2 = self.q_limit_ * self.q_limit_
+        self._step_inputs = _step_inputs(residual, rotation, context)
+        self._pack(step_class)
+        if detector is not None:
+            self.detector_, self.shaft_changed_ = detector, False
+        return self.reset()
+
     # ------------------------------------------------------------ pickling
     # The packed arrays are viewed by the estimator (the hidden state, the
     # last sample, the nominal tip), which pickle would turn into detached
@@ -474,16 +607,19 @@ class OnlineEstimator(BaseEstimator):
         self.n_held_ = 0
         return self
 
-    def _warn_if_pipeline_changed(self, event):
-        """Warn when the pipeline no longer is the one :meth:`start` took its step from."""
+    def _pipeline_changed(self):
+        """Whether the pipeline no longer is the one :meth:`start` took its step from."""
         fingerprint = getattr(self, "_fingerprint", None)
         if fingerprint is None:  # pickled before fingerprints were kept
-            return
+            return False
         try:
-            changed = fitted_fingerprint(*check_online_pipeline(self.pipeline)) != fingerprint
+            return fitted_fingerprint(*check_online_pipeline(self.pipeline)) != fingerprint
         except (TypeError, ValueError, AttributeError):  # no longer a fitted pipeline
-            changed = True
-        if changed:
+            return True
+
+    def _warn_if_pipeline_changed(self, event):
+        """Warn when the pipeline no longer is the one :meth:`start` took its step from."""
+        if self._pipeline_changed():
             warnings.warn(
                 f"This OnlineEstimator {event}, but its pipeline has been refit or its "
                 "parameters set since start(): the estimator steps the pipeline as it was "
