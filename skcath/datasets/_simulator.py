@@ -333,10 +333,19 @@ def _run_frame(spec, draw, tau, y):
 
 
 def _run_row(spec, draw, y, y_true, *, with_change):
-    """The row of one simulated run in the ``runs`` table (noise floor over motion rows, mm)."""
-    n = len(draw["q"])
-    motion = np.arange(n) >= draw["n_sweep"]
+    """The row of one simulated run in the ``runs`` table.
+
+    Besides the ids and sample counts: the noise floor over the motion rows
+    (mm), and the run's own deviation from its setting at the first motion
+    sample (per-run jitter plus slow drift until then): motor offsets (deg)
+    and relative tendon gains, per axis.
+    """
+    n, start = len(draw["q"]), draw["n_sweep"]
+    motion = np.arange(n) >= start
     err = np.linalg.norm(y[motion] - y_true[motion], axis=1)
+    # the run's own offsets and gains at its first motion sample, less the setting's
+    offset_drift = (draw["q"] - draw["u"])[start] - draw["cfg"]["offsets"]
+    gain_drift = draw["gain_scale"][start] - 1.0
     row = {
         "run": spec.run,
         "catheter": spec.catheter.name,
@@ -348,6 +357,10 @@ def _run_row(spec, draw, y, y_true, *, with_change):
         "n_samples": int(n),
         "n_sweep": int(draw["n_sweep"]),
         "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
+        "offset_drift1_deg": float(offset_drift[0]),
+        "offset_drift2_deg": float(offset_drift[1]),
+        "gain_drift1": float(gain_drift[0]),
+        "gain_drift2": float(gain_drift[1]),
     }
     if with_change:
         k = draw.get("change_index")
@@ -377,7 +390,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     -------
     bunch : sklearn.utils.Bunch
         ``X`` (long format), ``y``, ``y_true``, ``sensors`` and ``runs``
-        (one row per run with its noise floor); see :func:`make_benchmark`.
+        (one row per run with its noise floor and drift); see :func:`make_benchmark`.
         When a spec has a ``change``, ``runs`` has two more columns:
         ``setting_after`` (name of the setting from the change on, None for
         runs without a change) and ``change_time_s`` (time ``t`` of the
