@@ -1088,6 +1088,41 @@ def test_run_variation_changes_only_the_given_variation(small_benchmark, tmp_pat
     _assert_same_data(same, small_benchmark)
 
 
+DRIFT_COLUMNS = ["offset_drift1_deg", "offset_drift2_deg", "gain_drift1", "gain_drift2"]
+
+
+def test_runs_give_each_runs_own_drift_at_motion_start(small_benchmark):
+    drift = small_benchmark.runs[DRIFT_COLUMNS]
+    assert drift.notna().all().all() and (drift != 0).all().all()
+    # jitter 0.4 deg plus drift 1.2 deg; gains 1.5 % plus 3 %
+    assert drift[DRIFT_COLUMNS[:2]].abs().max().max() < 6.0
+    assert drift[DRIFT_COLUMNS[2:]].abs().max().max() < 0.25
+    # the same random numbers scaled: twice the standard deviations, twice the values
+    double = {"offset_jitter_deg": 0.8, "offset_drift_deg": 2.4, "gain_jitter": 0.03,
+              "gain_drift": 0.06}
+    wider = make_benchmark(n_catheters=1, n_runs=1, run_variation=double, cache=False)
+    assert_allclose(wider.runs[DRIFT_COLUMNS], 2.0 * drift, rtol=1e-9)
+    # without jitter and drift the run is its setting
+    still = {key: 0.0 for key in double}
+    calm = make_benchmark(n_catheters=1, n_runs=1, run_variation=still, cache=False)
+    assert_array_equal(calm.runs[DRIFT_COLUMNS], 0.0)
+
+
+def test_cache_of_an_earlier_layout_is_regenerated(small_benchmark, tmp_path, monkeypatch):
+    # a file written before the runs had their drift columns is not read back
+    old_runs = small_benchmark.runs.drop(columns=DRIFT_COLUMNS)
+    monkeypatch.setattr(_cache, "CACHE_FORMAT", _cache.CACHE_FORMAT - 1)
+    monkeypatch.setattr(
+        _benchmark, "simulate_runs", lambda *a, **k: Bunch(**{**small_benchmark, "runs": old_runs})
+    )
+    make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    monkeypatch.undo()
+    calls = _count_simulations(monkeypatch)
+    data = make_benchmark(n_catheters=1, n_runs=1, data_home=tmp_path)
+    assert len(calls) == 1
+    assert set(DRIFT_COLUMNS) <= set(data.runs.columns)
+
+
 @pytest.mark.parametrize(
     "run_variation, match",
     [

@@ -306,7 +306,12 @@ def make_benchmark(
             (mm; quaternions scalar first), aligned with ``X``.
         runs : pandas.DataFrame
             One row per run: ids, repeat, bend level and direction, shaft
-            wrap (deg), sample counts and the run's noise floor (mm).
+            wrap (deg), sample counts, the run's noise floor (mm), and the
+            simulator's truth of the run's own variation at its first motion
+            sample, which no column of ``X`` shows: ``offset_drift1_deg``,
+            ``offset_drift2_deg`` (the motor offsets less the setting's, deg)
+            and ``gain_drift1``, ``gain_drift2`` (the relative tendon gains
+            less 1), each the run's jitter plus its slow drift until then.
         catheters : dict
             Physical parameters of each catheter unit.
         noise_floor : float

@@ -16,8 +16,9 @@ from sklearn.utils import Bunch
 
 __all__ = ["CACHE_FORMAT", "SUFFIX", "as_json_value", "read_bunch", "read_key", "write_bunch"]
 
-#: Layout of the cache files; bumped when :func:`write_bunch` changes.
-CACHE_FORMAT = 1
+#: Layout of the cache files; bumped when :func:`write_bunch` or the fields
+#: of a benchmark change (2: the drift columns of ``runs``).
+CACHE_FORMAT = 2
 
 #: Suffix of the cache files.
 SUFFIX = ".npz"

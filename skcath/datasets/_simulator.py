@@ -452,8 +452,10 @@ class _Recording(NamedTuple):
     """One recorded run: what its rows in ``X`` and its row in ``runs`` are made of.
 
     ``start`` is the sample of the simulated run at which the recording
-    starts (its time ``t`` is ``(start + i) / RATE_HZ``); ``columns`` holds
-    the extra columns of its row in ``runs``.
+    starts (its time ``t`` is ``(start + i) / RATE_HZ``); ``drift`` holds
+    the run's own offsets and gains at its first motion sample, less its
+    setting's (:func:`_drift_columns`), and ``columns`` the extra columns of
+    its row in ``runs``.
     """
 
     run: str
@@ -465,6 +467,7 @@ class _Recording(NamedTuple):
     y: np.ndarray
     y_true: np.ndarray
     sensors: np.ndarray
+    drift: dict
     columns: dict
 
     def head(self, n):
@@ -473,6 +476,22 @@ class _Recording(NamedTuple):
             q=self.q[:n], tau=self.tau[:n], y=self.y[:n], y_true=self.y_true[:n],
             sensors=self.sensors[:n],
         )
+
+
+def _drift_columns(q, u, gain_scale, setting_offsets, i):
+    """The run's own deviation from its setting at sample ``i``.
+
+    Per-run jitter plus the slow drift until then: motor offsets (deg) and
+    relative tendon gains, per axis, as columns of the ``runs`` table.
+    """
+    offset_drift = (q[i] - u[i]) - setting_offsets
+    gain_drift = gain_scale[i] - 1.0
+    return {
+        "offset_drift1_deg": float(offset_drift[0]),
+        "offset_drift2_deg": float(offset_drift[1]),
+        "gain_drift1": float(gain_drift[0]),
+        "gain_drift2": float(gain_drift[1]),
+    }
 
 
 def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
@@ -490,13 +509,20 @@ def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
         columns["change_time_s"] = np.nan if k is None else k / RATE_HZ
     if with_resweep:
         columns["before_run"] = None
-    run = _Recording(spec.run, spec.setting, 0, draw["q"], draw["n_sweep"], *finished, columns)
+    drift = _drift_columns(draw["q"], draw["u"], draw["gain_scale"], draw["cfg"]["offsets"], draw["n_sweep"])
+    run = _Recording(spec.run, spec.setting, 0, draw["q"], draw["n_sweep"], *finished, drift, columns)
     if swept is None:
         return [run]
-    n_home = draw["resweep"]["n_home"]
+    part = draw["resweep"]
+    n_home = part["n_home"]
+    # the part's own arrays start at the change; its input u at the run's start
+    first = n_home + draw["n_sweep"]
+    drift = _drift_columns(
+        part["q"], part["u"][k:], part["gain_scale"], draw["cfg_after"]["offsets"], first
+    )
     after = _Recording(
-        f"{spec.run}{AFTER_SUFFIX}", spec.change.setting, k + n_home, draw["resweep"]["q"][n_home:],
-        draw["n_sweep"], *swept,
+        f"{spec.run}{AFTER_SUFFIX}", spec.change.setting, k + n_home, part["q"][n_home:],
+        draw["n_sweep"], *swept, drift,
         {**columns, "setting_after": None, "change_time_s": np.nan, "before_run": spec.run},
     )
     return [run.head(k), after]
@@ -537,6 +563,7 @@ def _run_row(rec, spec):
         "n_samples": int(n),
         "n_sweep": int(rec.n_sweep),
         "noise_floor_mm": float(np.sqrt(np.nanmean(err**2))),
+        **rec.drift,
         **rec.columns,
     }
 
