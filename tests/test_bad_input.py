@@ -409,7 +409,7 @@ def test_unknown_reading_option_names_the_options():
     before = motors.copy(deep=True), tracker.copy(deep=True)
     options = [
         "columns", "quat_order", "catheter", "setting", "run", "rate_hz",
-        "constants", "scale", "phase", "n_sweep", "valid", "tip_offset",
+        "constants", "scale", "phase", "n_sweep", "valid", "tip_offset", "torques",
     ]
     expected = (
         "read_streams() got the unknown keyword argument(s) ['nsweep']; the reading "
