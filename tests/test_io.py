@@ -16,7 +16,7 @@ from skcath._format import REQUIRED_COLUMNS, SENSOR_POSE_COLUMNS
 from skcath._validation import check_recordings
 from skcath.exceptions import TruncatedFileWarning
 from skcath.frames import quaternion_to_rotation
-from skcath.io import read_recording
+from skcath.io import read_recording, read_recordings
 from skcath.io._options import OPTION_NAMES, ReadingOptions
 
 N = 12
@@ -868,8 +868,6 @@ def test_bad_motor_options_are_refused(options, match):
 
 
 def test_read_recordings_refuses_files_of_other_motors(tmp_path, poses):
-    from skcath.io import read_recordings
-
     _write(_standard_frame(poses).assign(run="a"), tmp_path / "a.csv")
     _write(_standard_frame(poses).assign(run="b", q3=1.0, tau3=0.0), tmp_path / "b.csv")
     with pytest.raises(ValueError, match=r"b\.csv has the channels \['q1', 'q2', 'q3', 'tau1', "
