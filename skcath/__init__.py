@@ -1,7 +1,7 @@
 """skcath: catheter tip-position estimation with scikit-learn estimators.
 
 A geometric backbone calibrated on each recording's initial sweep predicts a
-nominal tip position from the two bending-motor angles; a learned residual
+nominal tip position from the bending-motor angles; a learned residual
 corrects it from motor history. See ``docs/`` for the data format and the method.
 """
 
@@ -14,7 +14,7 @@ from ._format import (
     TORQUE_COLUMNS,
 )
 
-from ._validation import check_recordings
+from ._validation import check_recordings, motor_columns
 from ._version import __version__
 
 __all__ = [
@@ -26,4 +26,5 @@ __all__ = [
     "TORQUE_COLUMNS",
     "__version__",
     "check_recordings",
+    "motor_columns",
 ]

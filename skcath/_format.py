@@ -1,7 +1,13 @@
 """Names of the columns of the long recording format.
 
 One row per time sample; the full description is in ``docs/data_format.rst``.
+A recording has ``N >= 1`` motors: the angles ``q1 .. qN`` and, when the
+drives report them, the torques ``tau1 .. tauN``; :func:`motor_names` and
+:func:`torque_names` give the names for ``N``, :func:`channel_index` reads
+``N`` back from a name.
 """
+
+import re
 
 #: Identifier columns. ``run`` is unique over the whole data set: one run id
 #: belongs to exactly one catheter and one shaft setting.
@@ -19,17 +25,45 @@ SWEEP = "sweep"
 MOTION = "motion"
 PHASES = (SWEEP, MOTION)
 
-#: Bending-motor angles (degrees).
-MOTOR_COLUMNS = ("q1", "q2")
-#: Drive torques reported by the two bending motors (drive units, N mm in the simulator).
-TORQUE_COLUMNS = ("tau1", "tau2")
+#: Prefixes of the motor-angle (degrees) and drive-torque columns: ``q1 .. qN``
+#: and ``tau1 .. tauN``, numbered from 1.
+MOTOR_PREFIX = "q"
+TORQUE_PREFIX = "tau"
+_CHANNEL = re.compile(rf"({MOTOR_PREFIX}|{TORQUE_PREFIX})([1-9][0-9]*)")
+
+
+def motor_names(n_motors):
+    """Names of the motor-angle columns of ``n_motors`` motors: ``("q1", ..., "qN")``."""
+    return tuple(f"{MOTOR_PREFIX}{k}" for k in range(1, n_motors + 1))
+
+
+def torque_names(n_motors):
+    """Names of the drive-torque columns of ``n_motors`` motors: ``("tau1", ..., "tauN")``."""
+    return tuple(f"{TORQUE_PREFIX}{k}" for k in range(1, n_motors + 1))
+
+
+def channel_index(name):
+    """``("q", k)`` or ``("tau", k)`` for the column ``qk`` or ``tauk`` (``k >= 1``), else None."""
+    match = _CHANNEL.fullmatch(name) if isinstance(name, str) else None
+    return None if match is None else (match.group(1), int(match.group(2)))
+
+
+#: Motor angles of the default two-motor catheter (degrees): anterior-posterior
+#: and left-right bending. Recordings of other instruments have ``motor_names(N)``.
+MOTOR_COLUMNS = motor_names(2)
+#: Drive torques of the default two-motor catheter (drive units, N mm in the
+#: simulator). Optional: a recording has all of ``torque_names(N)`` or none.
+TORQUE_COLUMNS = torque_names(2)
 #: Calibration reference tip position in the bending-section base frame (mm);
 #: present on sweep rows, NaN on motion rows.
 REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
 #: Names of the three target coordinates (tip position in the base frame, mm).
 TARGET_NAMES = ("p_x", "p_y", "p_z")
 
-#: Columns every recording must have.
+#: Columns every recording has, whatever its motors.
+RECORDING_COLUMNS = (*ID_COLUMNS, TIME, PHASE, *REFERENCE_COLUMNS)
+
+#: Columns of a recording of the default two-motor catheter with torques.
 REQUIRED_COLUMNS = (
     *ID_COLUMNS,
     TIME,

@@ -166,6 +166,8 @@ class ResidualLearnerState:
         learner = self.learner(**params)
         if not self.tensors:
             return learner
+        if "n_motors_" in self.attributes:  # the network's input sizes follow it
+            learner.n_motors_ = self.attributes["n_motors_"]
         with torch.random.fork_rng(devices=[]):  # the weights drawn here are replaced
             learner.initialize()
         module = self.tensors["module_"]

@@ -27,8 +27,9 @@ from pandas.api import types as pdt
 from sklearn.utils._param_validation import validate_params
 
 from ._format import (
-    CATHETER, MOTION, MOTOR_COLUMNS, PHASE, PHASES, QUAT_ORDERS, REFERENCE_COLUMNS,
-    REQUIRED_COLUMNS, RUN, SETTING, SWEEP, TARGET_NAMES, TIME, TORQUE_COLUMNS,
+    CATHETER, ID_COLUMNS, MOTION, MOTOR_COLUMNS, MOTOR_PREFIX, PHASE, PHASES, QUAT_ORDERS,
+    REFERENCE_COLUMNS, REQUIRED_COLUMNS, RUN, SETTING, SWEEP, TARGET_NAMES,
+    TIME, TORQUE_COLUMNS, TORQUE_PREFIX, channel_index, motor_names, torque_names,
 )
 
 __all__ = [
@@ -43,14 +44,17 @@ __all__ = [
     "check_target",
     "check_tip_offset",
     "factorize_ids",
+    "motor_columns",
     "to_array",
 ]
 
 #: Numeric channels that must be finite on every row: time (s), motor angles
-#: (degrees) and drive torques.
+#: (degrees) and drive torques (here those of the default two motors; every
+#: ``qk`` and ``tauk`` of a recording is checked the same way).
 FINITE_COLUMNS = (TIME, *MOTOR_COLUMNS, *TORQUE_COLUMNS)
-#: All numeric channels of the format. The reference tip columns (mm) may be
-#: NaN (absent on motion rows, tracker dropouts on sweep rows) but never +-inf.
+#: All numeric channels of the default format. The reference tip columns (mm)
+#: may be NaN (absent on motion rows, tracker dropouts on sweep rows) but never
+#: +-inf.
 NUMERIC_COLUMNS = (*FINITE_COLUMNS, *REFERENCE_COLUMNS)
 
 #: Largest magnitude accepted in any numeric channel. Larger finite values are
@@ -211,15 +215,16 @@ def check_tip_offset(tip_offset) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # frame-level checks
 # ---------------------------------------------------------------------------
-def _check_frame(X, caller: str = "check_recordings") -> None:
-    """Raise unless ``X`` is a non-empty DataFrame in the long format."""
+def _check_frame(X, caller: str = "check_recordings", allow_empty: bool = False) -> None:
+    """Raise unless ``X`` is a DataFrame (non-empty unless ``allow_empty``)."""
     if not isinstance(X, pd.DataFrame):
         raise TypeError(
             f"{caller} expects the long recording format: a pandas DataFrame with "
-            f"one row per time sample and the columns {list(REQUIRED_COLUMNS)}; "
+            f"one row per time sample and the columns {list(REQUIRED_COLUMNS)} (motors "
+            "q1 .. qN, torques tau1 .. tauN or none); "
             f"got {type(X).__module__}.{type(X).__qualname__}. See {_DOCS}."
         )
-    if len(X) == 0:
+    if len(X) == 0 and not allow_empty:
         raise ValueError(
             f"{caller} got an empty DataFrame (0 rows); at least one run with "
             f"samples is required. See {_DOCS}."
@@ -231,9 +236,17 @@ def _check_columns_present(X: pd.DataFrame, required: Iterable[str]) -> None:
     required = list(dict.fromkeys(required))
     missing = [c for c in required if c not in X.columns]
     if missing:
+        channels = [c for c in missing if channel_index(c) is not None]
+        hint = (
+            f" A recording of N motors has the motor angles {MOTOR_PREFIX}1 .. "
+            f"{MOTOR_PREFIX}N without a gap and the torques {TORQUE_PREFIX}1 .. "
+            f"{TORQUE_PREFIX}N or no torque column; N is the largest k of the columns "
+            f"{MOTOR_PREFIX}k and {TORQUE_PREFIX}k."
+            if channels else ""
+        )
         raise ValueError(
             f"The recordings are missing the column(s) {missing}. Expected columns: "
-            f"{required}; got {[_plain(c) for c in X.columns]}. See {_DOCS}."
+            f"{required}; got {[_plain(c) for c in X.columns]}.{hint} See {_DOCS}."
         )
     duplicated = X.columns[X.columns.duplicated()]
     clashing = [c for c in required if c in set(duplicated)]
@@ -242,6 +255,67 @@ def _check_columns_present(X: pd.DataFrame, required: Iterable[str]) -> None:
             f"The recordings contain the column(s) {clashing} more than once; "
             "each column name must be unique."
         )
+
+
+def _channel_columns(X: pd.DataFrame) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The motor and torque columns ``X`` must have, read from its column names.
+
+    ``N`` is the largest ``k`` of a column ``qk`` or ``tauk`` (1 when there is
+    none, so that ``q1`` is missing); the motors are ``q1 .. qN``, the torques
+    ``tau1 .. tauN`` when ``X`` has any ``tauk`` column, else none. Whether
+    they are all present is left to :func:`_check_columns_present`.
+    """
+    found = {}
+    for column in X.columns:
+        index = channel_index(column)
+        if index is not None:
+            found.setdefault(index[0], set()).add(index[1])
+    n_motors = max(max(found.get(MOTOR_PREFIX, {1})), max(found.get(TORQUE_PREFIX, {1})))
+    torques = torque_names(n_motors) if TORQUE_PREFIX in found else ()
+    return motor_names(n_motors), torques
+
+
+def motor_columns(X) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The motor-angle and drive-torque columns of recordings in the long format.
+
+    A recording of ``N >= 1`` motors has the motor angles ``q1 .. qN``
+    (degrees) and either the drive torques ``tau1 .. tauN`` or no torque
+    column at all; ``N`` is read from the column names. See
+    ``docs/data_format.rst``.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings in the long format; only the column names are read.
+
+    Returns
+    -------
+    motors : tuple of str
+        ``("q1", ..., "qN")``; ``len(motors)`` is the number of motors.
+    torques : tuple of str
+        ``("tau1", ..., "tauN")``, or ``()`` for recordings without torques.
+
+    Raises
+    ------
+    TypeError
+        If ``X`` is not a DataFrame.
+    ValueError
+        If a motor column is missing below the largest ``qk`` or ``tauk``
+        (``q1, q3`` without ``q2``), some but not all torques are present,
+        or a channel column appears twice; the message names the missing
+        columns and the columns found.
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> from skcath import motor_columns
+    >>> motor_columns(pd.DataFrame(columns=["run", "q1", "q2", "q3"]))
+    (('q1', 'q2', 'q3'), ())
+    """
+    _check_frame(X, caller="motor_columns", allow_empty=True)
+    motors, torques = _channel_columns(X)
+    _check_columns_present(X, (*motors, *torques))
+    return motors, torques
 
 
 def _factorize(X: pd.DataFrame, column: str, expected: str) -> tuple[np.ndarray, np.ndarray]:
@@ -755,7 +829,7 @@ def check_recordings(
     X,
     y=None,
     *,
-    columns: Sequence[str] = REQUIRED_COLUMNS,
+    columns: Sequence[str] | str = "auto",
     require_sweep: bool = True,
     copy: bool = True,
 ) -> tuple[pd.DataFrame, np.ndarray | None]:
@@ -767,7 +841,8 @@ def check_recordings(
         One row per time sample, with the columns of ``docs/data_format.rst``:
         ids ``catheter``, ``setting``, ``run``; time ``t`` (s); ``phase``
         (``"sweep"`` then ``"motion"`` in every run); motor angles ``q1``,
-        ``q2`` (degrees); drive torques ``tau1``, ``tau2``; reference tip
+        ``q2`` (degrees), or ``q1 .. qN`` for ``N`` motors (:func:`motor_columns`);
+        drive torques ``tau1``, ``tau2`` (``tau1 .. tauN``, or none); reference tip
         ``ref_x``, ``ref_y``, ``ref_z`` (mm, base frame; NaN allowed). Rows of
         different runs may be interleaved; within a run, rows must be in time
         order.
@@ -777,8 +852,12 @@ def check_recordings(
         DataFrame are matched by name (``p_x, p_y, p_z`` in any order), or
         taken by position when unnamed (labels ``0, 1, 2``). On sweep rows it
         must agree with ``ref_*`` (see Raises).
-    columns : sequence of str, default ``REQUIRED_COLUMNS``
-        Columns that must be present. The ``run`` column is always required.
+    columns : "auto", str or sequence of str, default="auto"
+        Columns that must be present. ``"auto"`` means those of the format:
+        the ids, ``t``, ``phase``, the reference tip and the motor and
+        torque columns of ``X`` (:func:`motor_columns`); for the default
+        two-motor recordings with torques, ``REQUIRED_COLUMNS``. Another
+        string names one column. The ``run`` column is always required.
         The checks of the known columns (ids, numeric channels, ``phase``) run
         for those listed here; other listed columns are only checked for
         presence. Columns of ``X`` not listed are passed through unchecked.
@@ -822,7 +901,10 @@ def check_recordings(
     rows in 204 runs they take a fraction of a second.
     """
     _check_frame(X)
-    if isinstance(columns, str):
+    if isinstance(columns, str) and columns == "auto":
+        motors, torques = _channel_columns(X)
+        columns = (*ID_COLUMNS, TIME, PHASE, *motors, *torques, *REFERENCE_COLUMNS)
+    elif isinstance(columns, str):
         columns = (columns,)
     required = list(dict.fromkeys([*columns, RUN]))
     _check_columns_present(X, required)
@@ -833,10 +915,11 @@ def check_recordings(
             _check_run_ids_unique(X, codes, runs, column)
 
     converted: dict[str, np.ndarray] = {}
-    for column in NUMERIC_COLUMNS:
+    channels = [c for c in required if channel_index(c) is not None]
+    for column in (TIME, *channels, *REFERENCE_COLUMNS):
         if column in required:
             values = _column_as_float(X, column)
-            _check_finite(X, column, values, allow_nan=column not in FINITE_COLUMNS)
+            _check_finite(X, column, values, allow_nan=column in REFERENCE_COLUMNS)
             _check_magnitude(
                 values,
                 f"Column {column!r}",

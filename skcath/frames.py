@@ -284,7 +284,17 @@ def _rotations(quats, quat_order, name, rows):
 _MIN_FRAME_MOTION_MM = 1e-3
 
 
-def sweep_frame(q, p, *, run=None):
+def _quadratic_design(q):
+    """Columns ``1, q_i, q_i q_j (i <= j)`` of a quadratic in the motor angles ``q`` (n, N).
+
+    For two motors ``1, q1, q2, q1^2, q1 q2, q2^2``.
+    """
+    n_motors = q.shape[1]
+    squares = [q[:, i] * q[:, j] for i in range(n_motors) for j in range(i, n_motors)]
+    return np.column_stack([np.ones(q.shape[0]), *q.T, *squares])
+
+
+def sweep_frame(q, p, *, run=None, n_motors=2):
     r"""Rotation from the base frame B to the sweep frame S of one run.
 
     The tip positions of the sweep are fitted by a quadratic in the motor
@@ -306,15 +316,19 @@ def sweep_frame(q, p, *, run=None):
 
     Parameters
     ----------
-    q : array-like of shape (n, 2)
-        Motor angles of the sweep samples (degrees). The sweep must move both
-        motors (at least six samples that do not lie on one conic).
+    q : array-like of shape (n, n_motors)
+        Motor angles of the sweep samples (degrees). The sweep must move
+        every motor (at
+        least as many samples as the quadratic has coefficients, ``1 + N +
+        N (N + 1) / 2``: 6 for two motors, not all on one conic).
     p : array-like of shape (n, 3)
         Tip positions of the same samples in the base frame (mm): the EM
         reference, or a backbone's nominal tip. Rows with a non-finite value
         are ignored.
     run : str, optional
         Run id, named in error messages.
+    n_motors : int, default=2
+        Number of motors ``N``, the columns of ``q``.
 
     Returns
     -------
@@ -324,9 +338,10 @@ def sweep_frame(q, p, *, run=None):
     Raises
     ------
     ValueError
-        If the shapes are wrong, fewer than six finite samples remain, the
-        motor angles do not determine a quadratic (e.g. only one motor
-        moves), or the tip does not move along the first motor's direction.
+        If the shapes are wrong, fewer finite samples remain than the
+        quadratic has coefficients, the motor angles do not determine a
+        quadratic (e.g. only one of two motors moves), or the tip does not
+        move along the first motor's direction.
 
     Examples
     --------
@@ -340,7 +355,7 @@ def sweep_frame(q, p, *, run=None):
            [ 0.,  0.,  1.]])
     """
     where = "" if run is None else f" of run {run!r}"
-    q = _as_float_rows(q, "q", 2)
+    q = _as_float_rows(q, "q", n_motors)
     p = _as_float_rows(p, "p", 3)
     if q.shape[0] != p.shape[0]:
         raise ValueError(
@@ -348,21 +363,22 @@ def sweep_frame(q, p, *, run=None):
         )
     keep = np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
     q, p = q[keep], p[keep]
-    if q.shape[0] < 6:
+    design = _quadratic_design(q)
+    if q.shape[0] < design.shape[1]:
         raise ValueError(
-            f"The sweep frame{where} needs at least 6 sweep samples with finite motor "
-            f"angles and tip positions; got {q.shape[0]}."
+            f"The sweep frame{where} needs at least {design.shape[1]} sweep samples with "
+            f"finite motor angles and tip positions; got {q.shape[0]}."
         )
-    q1, q2 = q[:, 0], q[:, 1]
-    design = np.column_stack([np.ones_like(q1), q1, q2, q1 * q1, q1 * q2, q2 * q2])
+    q1 = q[:, 0]
     scale = np.abs(design).max(axis=0)
     scale[scale == 0] = 1.0
     coef, _, rank, _ = np.linalg.lstsq(design / scale, p, rcond=None)
     if rank < design.shape[1]:
         raise ValueError(
             f"The motor angles of the sweep{where} do not determine the sweep frame: "
-            "a quadratic fit in (q1, q2) is rank deficient. The sweep must move both "
-            "motors in several directions (the 8-ray sweep does)."
+            f"a quadratic fit in the {q.shape[1]} motor angle(s) is rank deficient. The "
+            "sweep must move every motor, two motors in several directions (the 8-ray "
+            "sweep does)."
         )
     coef = coef / scale[:, None]
     neutral, a1 = coef[0], coef[1]

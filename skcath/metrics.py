@@ -29,6 +29,7 @@ from ._validation import (
     _phase_masks,
     _target_frame_in_order,
     check_target,
+    motor_columns,
 )
 
 __all__ = [
@@ -324,13 +325,13 @@ def motor_magnitude(X):
 
     .. math::
 
-        m_t = \\sqrt{q_{1,t}^2 + q_{2,t}^2}
+        m_t = \\sqrt{q_{1,t}^2 + \\dots + q_{N,t}^2}
 
     Parameters
     ----------
     X : pandas.DataFrame
-        The recordings (long format); only the motor angle columns ``q1`` and
-        ``q2`` (degrees) are used.
+        The recordings (long format); only the motor angle columns ``q1 ..
+        qN`` (degrees, :func:`skcath.motor_columns`) are used.
 
     Returns
     -------
@@ -346,13 +347,13 @@ def motor_magnitude(X):
     array([5., 2.])
     """
     _check_frame(X, caller="motor_magnitude")
-    _check_columns_present(X, fmt.MOTOR_COLUMNS)
+    motors, _ = motor_columns(X)
     q = []
-    for column in fmt.MOTOR_COLUMNS:
+    for column in motors:
         values = _column_as_float(X, column)
         _check_finite(X, column, values, allow_nan=False)
         q.append(values)
-    return np.hypot(*q)
+    return np.hypot.reduce(q, axis=0)
 
 
 def motion_time(X):

@@ -48,9 +48,9 @@ import numpy as np
 import pandas as pd
 from sklearn.utils._param_validation import Interval, validate_params
 
-from ._format import MOTOR_COLUMNS, PHASE, SWEEP
+from ._format import PHASE, SWEEP
 from ._runs import run_codes, run_positions
-from ._validation import CUT_RUN_HINT, check_recordings, check_target, to_array
+from ._validation import CUT_RUN_HINT, check_recordings, check_target, motor_columns, to_array
 
 __all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
 
@@ -930,7 +930,7 @@ def reduce_sweep(X, y=None, *, n_rays=None, stride=1, n_rays_swept=8):
     n_keep = n_rays_swept if n_rays is None else int(n_rays)
 
     sweep = (checked[PHASE] == SWEEP).to_numpy()
-    q = checked[list(MOTOR_COLUMNS)].to_numpy()
+    q = checked[list(motor_columns(checked)[0])].to_numpy()
     keep = np.ones(len(checked), dtype=bool)
     _, runs = run_codes(checked)
     for run, pos in zip(runs, run_positions(checked, rows=sweep)):

@@ -409,7 +409,7 @@ def test_unknown_reading_option_names_the_options():
     before = motors.copy(deep=True), tracker.copy(deep=True)
     options = [
         "columns", "quat_order", "catheter", "setting", "run", "rate_hz",
-        "constants", "scale", "phase", "n_sweep", "valid", "tip_offset",
+        "constants", "scale", "phase", "n_sweep", "valid", "tip_offset", "torques",
     ]
     expected = (
         "read_streams() got the unknown keyword argument(s) ['nsweep']; the reading "
@@ -1172,3 +1172,74 @@ def test_resweep_without_a_shaft_change_is_refused(tmp_path):
                        r"it needs shaft_change=True"):
         make_benchmark(n_catheters=1, n_runs=1, resweep=True, data_home=tmp_path)
     assert not list(tmp_path.iterdir())
+# any number of motors: gaps in the motor columns, torques of some motors,
+# learners and backbones given another number of motors or no torque
+# ---------------------------------------------------------------------------
+def test_gap_in_the_motor_columns_is_named():
+    """q1, q3 without q2: the missing column, and how motors and torques are numbered."""
+    X, y = tiny_recordings()
+    X = X.drop(columns="q2").assign(q3=1.0)
+    with pytest.raises(ValueError, match=r"missing the column\(s\) \['q2', 'tau3'\].*A recording "
+                       r"of N motors has the motor angles q1 \.\. qN without a gap and the "
+                       r"torques tau1 \.\. tauN or no torque column"):
+        check_recordings(X, y)
+
+
+def test_torques_of_some_motors_only_are_refused():
+    """q1..q3 with tau1, tau2: torques come for every motor or for none."""
+    X, y = tiny_recordings()
+    with pytest.raises(ValueError, match=r"missing the column\(s\) \['tau3'\]"):
+        check_recordings(X.assign(q3=0.5), y)
+
+
+def test_non_finite_third_motor_is_named():
+    X, y = tiny_recordings()
+    X = X.assign(q3=0.5, tau3=0.1)
+    X.loc[X.index[6], "q3"] = np.inf
+    with pytest.raises(ValueError, match=r"Column 'q3' contains 1 non-finite value\(s\)"):
+        check_recordings(X, y)
+
+
+def test_learner_with_torques_on_recordings_without_torques(nominal):
+    """use_torque=True on a rig without torque sensing names use_torque and the columns."""
+    Xb, y = nominal
+    before = Xb.copy()
+    no_torque = Xb.drop(columns=["tau1", "tau2"])
+    with pytest.raises(ValueError, match=r"GRUResidual has use_torque=True and reads the drive "
+                       r"torques \['tau1', 'tau2'\] of the 2 motor\(s\), but the recordings have "
+                       r"no torque column\. Pass use_torque=False"):
+        _tiny_gru().fit(no_torque, y)
+    pd.testing.assert_frame_equal(Xb, before)
+
+
+def test_learner_given_another_number_of_motors(nominal, streaming):
+    """A network fitted on two motors refuses three, in predict and in the streaming start."""
+    Xb, _ = nominal
+    pipe, sweep, _ = streaming
+    residual = pipe.named_steps["residual"]
+    message = r"This GRUResidual was fitted on recordings of 2 motor\(s\) \(q1 \.\. q2\); X has 3"
+    with pytest.raises(ValueError, match=message):
+        residual.predict(Xb.assign(q3=0.0, tau3=0.0))
+    with pytest.raises(ValueError, match=message):
+        OnlineEstimator(pipe, engine="numpy").start(sweep.assign(q3=1.0, tau3=0.0))
+
+
+@pytest.mark.parametrize("n_motors", [1, 3])
+def test_geometric_backbone_given_another_number_of_motors(bench, n_motors):
+    """PCC and PDL model two motors: the count is named, PolynomialBackbone proposed."""
+    X, _ = bench
+    X = X.drop(columns=["q2", "tau2"]) if n_motors == 1 else X.assign(q3=0.0, tau3=0.0)
+    listed = "q1" if n_motors == 1 else "q1, q2, q3"
+    with pytest.raises(ValueError, match=rf"PDLBackbone models a catheter with two bending "
+                       rf"motors \(q1, q2\), but the recordings have {n_motors} motor\(s\) "
+                       rf"\({listed}\)\. Use PolynomialBackbone"):
+        PDLBackbone().fit(X)
+
+
+def test_streaming_step_with_another_number_of_channels(steppers):
+    """Five values for the four channels of the recordings: the count and the channels."""
+    estimator = steppers[0]
+    with pytest.raises(TypeError, match=r"step takes four numbers, q1, q2 \(deg\), tau1, tau2, "
+                       r"one per channel of the recordings; got 5 value\(s\)"):
+        estimator.step(0.0, 0.0, 0.0, 0.0, 0.0)
+    assert estimator.n_steps_ == 0

@@ -9,13 +9,24 @@ strict mode, so a listed check that starts to pass fails the test suite.
 GRUResidual and MLPResidual are skorch nets; two checks of the estimator API
 fail because of how skorch stores its parameters, and are listed separately.
 Where a generic check tests a property that does apply, a test in
-``test_residuals.py`` checks the same property on long-format recordings.
+``test_residuals.py`` checks the same property on long-format recordings;
+the last test here checks the main ones on recordings of one and of three
+motors.
 """
 
+import pickle
+
+import joblib
+import pandas as pd
 import pytest
+import torch
+from numpy.testing import assert_allclose, assert_array_equal
+from sklearn.base import clone
 from sklearn.utils.estimator_checks import estimator_checks_generator, parametrize_with_checks
 
+from _helpers import benchmark_settings, with_motors
 from test_common import API_CHECKS, _check_name, _input_format_failure, run_check
+from skcath.backbones import PolynomialBackbone
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
 # Prefix of every reason below: why the generic check cannot run on a residual learner.
@@ -224,3 +235,58 @@ def test_expected_failures_are_real_and_for_the_stated_reason(estimator):
             continue  # y is optional
         assert name in names
         assert name not in expected or name in SKORCH_FAILURES
+
+
+# ---------------------------------------------------------------------------
+# the properties of the generic checks, on recordings of one and three motors
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def recordings_of():
+    """``recordings_of(n)``: short recordings of ``n`` motors with a polynomial backbone, and y."""
+    X, y = benchmark_settings(("S02", "S09", "S13"))
+    motion = (X["phase"] == "motion").to_numpy()
+    rank = pd.Series(motion).groupby(X["run"].to_numpy()).cumsum().to_numpy()
+    keep = ~motion | (rank <= 120)
+    X, y = X[keep].reset_index(drop=True), y[keep]
+    cache = {}
+
+    def get(n_motors):
+        if n_motors not in cache:
+            Xn = with_motors(X, n_motors)
+            cache[n_motors] = (PolynomialBackbone().fit(Xn).transform(Xn), y)
+        return cache[n_motors]
+
+    return get
+
+
+@pytest.mark.parametrize("n_motors", [1, 3])
+@pytest.mark.parametrize("estimator", ESTIMATORS, ids=lambda e: type(e).__name__)
+def test_common_properties_on_recordings_of_other_motors(recordings_of, estimator, n_motors):
+    """fit returns self and keeps the parameters; predict changes nothing; pickling,
+    refitting and predicting runs one at a time give the same tips; the input is unchanged."""
+    Xb, y = recordings_of(n_motors)
+    X_before = Xb.copy()
+    est = clone(estimator)
+
+    def own(params):  # skorch lists its (stateful once trained) callbacks among them
+        return {k: v for k, v in params.items() if not k.startswith("callbacks")}
+
+    params = joblib.hash(own(est.get_params()))
+    assert est.fit(Xb, y) is est
+    assert joblib.hash(own(est.get_params())) == params
+    assert est.n_features_in_ == Xb.shape[1]
+    assert list(est.feature_names_in_) == list(Xb.columns)
+    before = dict(vars(est))
+    module = getattr(est, "module_", None)
+    weights = {} if module is None else {k: v.clone() for k, v in module.state_dict().items()}
+    pred = est.predict(Xb)
+    assert vars(est).keys() == before.keys()
+    assert all(vars(est)[k] is before[k] for k in before)
+    for key, value in weights.items():
+        assert torch.equal(module.state_dict()[key], value)
+    assert_array_equal(pickle.loads(pickle.dumps(est)).predict(Xb), pred)
+    assert_array_equal(clone(estimator).fit(Xb, y).predict(Xb), pred)
+    for run in Xb["run"].unique():
+        rows = (Xb["run"] == run).to_numpy()
+        assert_allclose(est.predict(Xb[rows]), pred[rows], rtol=0, atol=1e-5)
+    pd.testing.assert_frame_equal(Xb, X_before)

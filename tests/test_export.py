@@ -18,13 +18,12 @@ import torch
 from numpy.testing import assert_allclose
 from sklearn.pipeline import Pipeline
 
-from skcath.backbones import PDLBackbone
+from skcath.backbones import PDLBackbone, PolynomialBackbone
 from skcath.datasets import make_benchmark
 from skcath.online import OnlineEstimator, export, export_io
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-CHANNELS = ["q1", "q2", "tau1", "tau2"]
-
+from _helpers import tiny_residual, with_motors
 
 def _shorten(X, settings, n_motion):
     motion = (X["phase"] == "motion").to_numpy()
@@ -89,22 +88,27 @@ def _torchscript_runner(path, names):
 
 
 def _stream_graph(run, pipe, X_run, dtype):
-    """Tips of the motion samples from the exported step graph."""
+    """Tips of the motion samples from the exported step graph.
+
+    The step features ``[q, dq, (tau,) b]`` are built here from the motor
+    columns, for any number of motors.
+    """
     motion = (X_run["phase"] == "motion").to_numpy()
     sweep = X_run[~motion]
     est = OnlineEstimator(pipe, dtype="float64" if dtype == np.float64 else "float32")
     est.start(sweep)
     inputs, _ = export_io(pipe)
-    residual = pipe["residual"]
+    use_torque = pipe["residual"].use_torque
+    n = len([c for c in est.channels_ if c.startswith("q")])
     hidden = np.zeros(inputs["hidden"], dtype) if "hidden" in inputs else None
-    last = sweep[["q1", "q2"]].to_numpy()[-1]
+    last = sweep[list(est.channels_[:n])].to_numpy()[-1]
     tips = []
-    for q1, q2, tau1, tau2 in X_run.loc[motion, CHANNELS].to_numpy():
-        est.step(q1, q2, tau1, tau2)
+    for sample in X_run.loc[motion, list(est.channels_)].to_numpy():
+        est.step(*sample)
         b = est.nominal_.copy()
-        features = [q1, q2, q1 - last[0], q2 - last[1]]
-        features += [tau1, tau2] if residual.use_torque else []
-        last = (q1, q2)
+        q = sample[:n]
+        features = [*q, *(q - last), *(sample[n:] if use_torque else [])]
+        last = q
         feed = {"features": np.array([[*features, *b]], dtype)}
         if "rotation" in inputs:
             feed["rotation"] = est.rotation_.astype(dtype)
@@ -223,3 +227,24 @@ def test_module_step_matches_forward(pipelines, Est, params):
     if Est is GRUResidual:
         assert hidden.shape == (module.gru.num_layers, 2, module.gru.hidden_size)
     assert list(module.state_dict()) == names  # the cells are not submodules
+
+
+# ---------------------------------------------------------------------------
+# one and three motors (the polynomial backbone)
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("n_motors, Est", [(1, GRUResidual), (3, GRUResidual), (3, MLPResidual)])
+def test_onnx_matches_predict_for_any_number_of_motors(data, tmp_path, n_motors, Est, dtype):
+    pytest.importorskip("onnxruntime")
+    _, Xb, y, X_run, _ = data
+    train = with_motors(Xb.drop(columns=["b_x", "b_y", "b_z"]), n_motors)
+    run = with_motors(X_run, n_motors, random_state=1)
+    backbone = PolynomialBackbone().fit(train)
+    residual = tiny_residual(Est, max_epochs=1).fit(backbone.transform(train), y)
+    pipe = Pipeline([("backbone", backbone), ("residual", residual)])
+    inputs, _ = export_io(pipe)
+    assert inputs["features"] == (1, 3 * n_motors + 3)
+    path = _export(pipe, tmp_path / "step.onnx", "onnx", dtype)
+    tips, _ = _stream_graph(_onnx_runner(path)[0], pipe, run, dtype)
+    tol = 1e-9 if dtype == np.float64 else 1e-4
+    assert_allclose(tips, _expected(pipe, run, backbone.transform(run), dtype), rtol=0, atol=tol)

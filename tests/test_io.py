@@ -16,7 +16,7 @@ from skcath._format import REQUIRED_COLUMNS, SENSOR_POSE_COLUMNS
 from skcath._validation import check_recordings
 from skcath.exceptions import TruncatedFileWarning
 from skcath.frames import quaternion_to_rotation
-from skcath.io import read_recording
+from skcath.io import read_recording, read_recordings
 from skcath.io._options import OPTION_NAMES, ReadingOptions
 
 N = 12
@@ -802,3 +802,74 @@ def test_errors_that_name_the_file_pass_unchanged(tmp_path):
 def test_missing_file_is_a_file_not_found_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing.csv"):
         read_recording(tmp_path / "nothing.csv")
+
+
+# ---------------------------------------------------------------------------
+# any number of motors, torques optional
+# ---------------------------------------------------------------------------
+def test_one_motor_rig_is_read_as_one_motor(tmp_path, poses):
+    """Without constants, a file with q1, tau1 alone is a recording of one motor."""
+    path = _write(_rig_frame(poses), tmp_path / "rig.csv")
+    kwargs = {k: v for k, v in RIG_KWARGS.items() if k != "constants"}
+    X, y = read_recording(path, **kwargs)
+    assert list(X.columns) == [
+        "catheter", "setting", "run", "t", "phase", "q1", "tau1", "ref_x", "ref_y", "ref_z"
+    ]
+    assert_allclose(X["q1"], np.arange(N) * 100.0)
+    assert_allclose(y, poses["p_b"], atol=1e-9)
+    # the same file read as two motors, as before, differs only by the constant motor
+    X2, y2 = read_recording(path, **RIG_KWARGS)
+    pd.testing.assert_frame_equal(X2.drop(columns=["q2", "tau2"]), X)
+    assert_allclose(y2, y)
+
+
+def test_three_motors_by_name_and_by_map(tmp_path, poses):
+    frame = _standard_frame(poses).assign(q3=np.linspace(5, -5, N), tau3=np.linspace(2, 3, N))
+    X, _ = read_recording(_write(frame, tmp_path / "rec.csv"))
+    assert list(X.columns[5:11]) == ["q1", "q2", "q3", "tau1", "tau2", "tau3"]
+    assert_allclose(X["q3"], frame["q3"])
+    # a third motor under another name, mapped, and scaled
+    other = frame.rename(columns={"q3": "motor_c"})
+    X_map, _ = read_recording(
+        _write(other, tmp_path / "other.csv"), columns={"q3": "motor_c"}, scale={"q3": 2.0}
+    )
+    assert_allclose(X_map["q3"], 2.0 * frame["q3"])
+
+
+def test_rig_without_torque_sensing_reads_no_torque(tmp_path, poses):
+    frame = _standard_frame(poses).drop(columns=["tau1", "tau2"])
+    path = _write(frame, tmp_path / "rec.csv")
+    with pytest.raises(ValueError, match=r"no 'tau1' column.*or pass torques=False"):
+        read_recording(path)
+    X, y = read_recording(path, torques=False)
+    assert list(X.columns) == [
+        "catheter", "setting", "run", "t", "phase", "q1", "q2", "ref_x", "ref_y", "ref_z"
+    ]
+    assert_allclose(y, poses["p_b"], atol=1e-9)
+    # torque columns in the file are not read with torques=False
+    X_with, _ = read_recording(_write(_standard_frame(poses), tmp_path / "t.csv"), torques=False)
+    pd.testing.assert_frame_equal(X_with, X)
+
+
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        ({"torques": "no"}, r"torques must be True .* or False"),
+        ({"torques": False, "columns": {"tau1": "cur"}}, r"torques=False reads no torque, but "
+         r"columns names \['tau1'\]"),
+        ({"torques": False, "constants": {"tau2": 0.0}}, r"but constants names \['tau2'\]"),
+        ({"columns": {"q7x": "enc"}}, r"unknown key 'q7x'"),
+        ({"constants": {"tau0": 0.0}}, r"constants has the key 'tau0'"),
+    ],
+)
+def test_bad_motor_options_are_refused(options, match):
+    with pytest.raises(ValueError, match=match):
+        ReadingOptions(**options)
+
+
+def test_read_recordings_refuses_files_of_other_motors(tmp_path, poses):
+    _write(_standard_frame(poses).assign(run="a"), tmp_path / "a.csv")
+    _write(_standard_frame(poses).assign(run="b", q3=1.0, tau3=0.0), tmp_path / "b.csv")
+    with pytest.raises(ValueError, match=r"b\.csv has the channels \['q1', 'q2', 'q3', 'tau1', "
+                       r"'tau2', 'tau3'\] but a\.csv has \['q1', 'q2', 'tau1', 'tau2'\]"):
+        read_recordings(tmp_path, progress=False)

@@ -29,15 +29,23 @@ from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
 from sklearn.utils._param_validation import InvalidParameterError
 
-from skcath.backbones import PCCBackbone, PDLBackbone, pcc_tip, pdl_tip, play_operator
+from skcath.backbones import (
+    PCCBackbone,
+    PDLBackbone,
+    PolynomialBackbone,
+    pcc_tip,
+    pdl_tip,
+    play_operator,
+)
 from skcath.datasets import benchmark_catheter, make_benchmark, simulate_run
 from skcath.exceptions import PipelineChangedWarning
 from skcath.frames import sweep_frame
 from skcath.online import OnlineEstimator, ShaftChangeDetector, calibrate_sweep, export
+from skcath.online._fast import BackboneStep
 from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import tiny_residual
+from _helpers import tiny_residual, with_motors
 
 TRAIN_SETTINGS = ["S02", "S09"]
 TEST_SETTING = "S05"
@@ -788,3 +796,89 @@ def test_resweep_leaves_its_input_unchanged(pipelines, reswept):
     before = motor_only.copy(deep=True)
     OnlineEstimator(pipelines(PDLBackbone, "gru")).start(first).resweep(motor_only)
     pd.testing.assert_frame_equal(motor_only, before, check_exact=True)
+# one, two and three motors (the polynomial backbone), with and without torques
+# ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def motor_pipelines(data):
+    """Lazily fitted PolynomialBackbone pipelines on the data turned into ``n`` motors.
+
+    ``motor_pipelines(n, kind, torques)`` gives the pipeline, the test run of
+    ``n`` motors and its backbone output.
+    """
+    X, y, X_run = data
+    cache = {}
+
+    def get(n_motors, kind, torques=True):
+        key = (n_motors, kind, torques)
+        if key not in cache:
+            Xn = with_motors(X, n_motors, torques=torques)
+            run = with_motors(X_run, n_motors, torques=torques, random_state=1)
+            backbone = PolynomialBackbone().fit(Xn)
+            Xb = backbone.transform(Xn)
+            if kind == "none":
+                residual = NoResidual().fit(Xb, y)
+            else:
+                Est = {"mlp": MLPResidual, "gru": GRUResidual}[kind]
+                residual = _tiny(Est, use_torque=torques).fit(Xb, y)
+            pipe = Pipeline([("backbone", backbone), ("residual", residual)])
+            cache[key] = (pipe, run, backbone.transform(run))
+        return cache[key]
+
+    return get
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize(
+    "n_motors, kind, torques",
+    [(1, "gru", True), (3, "gru", True), (3, "mlp", True), (1, "none", True),
+     (3, "gru", False), (2, "gru", False)],
+    ids=["one-gru", "three-gru", "three-mlp", "one-none", "three-no-torque", "two-no-torque"],
+)
+def test_step_matches_predict_for_any_number_of_motors(motor_pipelines, n_motors, kind, torques,
+                                                       engine):
+    pipe, X_run, Xb_run = motor_pipelines(n_motors, kind, torques)
+    motion = (X_run["phase"] == "motion").to_numpy()
+    est = OnlineEstimator(pipe, engine=engine).start(X_run[~motion])
+    channels = [f"q{k}" for k in range(1, n_motors + 1)]
+    channels += [f"tau{k}" for k in range(1, n_motors + 1)] if torques else []
+    assert est.channels_ == tuple(channels)
+    assert est.q_neutral_.shape == (n_motors,)
+    tips = _stream(est, X_run.loc[motion, channels].to_numpy())
+    expected64 = _float64(pipe).steps[-1][1].predict(Xb_run)[motion]
+    assert_allclose(tips, expected64, rtol=0, atol=FLOAT64_TOL_MM)
+    assert_allclose(tips, pipe.predict(X_run)[motion], rtol=0, atol=FLOAT32_TOL_MM)
+    if kind != "none":
+        nominal = Xb_run[["b_x", "b_y", "b_z"]].to_numpy()[motion]
+        assert np.abs(tips - nominal).max() > 1e-3
+    # the backbone evaluated on its own, by the step's kernel
+    kernel = BackboneStep(est.backbone_params_)
+    first = X_run.loc[motion, channels[:n_motors]].to_numpy()[0]
+    assert_allclose(kernel(*first), Xb_run.loc[motion, ["b_x", "b_y", "b_z"]].to_numpy()[0],
+                    rtol=0, atol=FLOAT64_TOL_MM)
+
+
+def test_bad_samples_of_three_motors(motor_pipelines):
+    """The channel names, the range over all motors, and holding apply to every motor."""
+    pipe, X_run, _ = motor_pipelines(3, "gru")
+    motion = (X_run["phase"] == "motion").to_numpy()
+    sweep = X_run[~motion]
+    sample = X_run.loc[motion, ["q1", "q2", "q3", "tau1", "tau2", "tau3"]].to_numpy()[0]
+    est = OnlineEstimator(pipe).start(sweep)
+    bad = sample.copy()
+    bad[5] = np.nan
+    with pytest.raises(ValueError, match=r"non-finite value for tau3 \(q1=.* deg, q2=.* deg, "
+                       r"q3=.* deg, tau1=.*, tau2=.*, tau3=nan\)"):
+        est.step(*bad)
+    far = sample.copy()
+    far[2] = est.q_neutral_[2] + 2 * est.q_limit_
+    with pytest.raises(ValueError, match=r"\(q1, q2, q3\) = .* deg lies .* deg from the neutral"):
+        est.step(*far)
+    with pytest.raises(TypeError, match=r"step takes six numbers, q1, q2, q3 \(deg\), tau1, tau2, "
+                       r"tau3, one per channel of the recordings; got 4"):
+        est.step(*sample[:4])
+    assert est.n_steps_ == 0
+    held = OnlineEstimator(pipe, on_invalid="hold").start(sweep)
+    plain = OnlineEstimator(pipe).start(sweep)
+    last = sweep[["q1", "q2", "q3", "tau1", "tau2", "tau3"]].to_numpy()[-1]
+    assert_allclose(held.step(*far), plain.step(*last[:3], *sample[3:]), rtol=0, atol=0)
+    assert held.n_held_ == 1

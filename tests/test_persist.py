@@ -21,7 +21,7 @@ from sklearn.utils._param_validation import InvalidParameterError
 import skcath
 import skcath._version
 from skcath import persist
-from skcath.backbones import PCCBackbone, PDLBackbone
+from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone
 from skcath.datasets import make_benchmark
 from skcath.persist import (
     IncompatibleVersionError,
@@ -29,6 +29,8 @@ from skcath.persist import (
     is_compatible_version,
 )
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
+
+from _helpers import with_motors
 
 TINY = {"max_epochs": 1, "module__hidden_size": 8, "window_step": 200, "random_state": 0,
         "n_threads": 1}
@@ -464,3 +466,25 @@ def test_skops_state_of_a_cuda_learner_loads_on_the_cpu(data, fitted, tmp_path):
         loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
     assert loaded.device == "cpu"
     assert_array_equal(loaded.predict(Xb), learner.predict(Xb))
+
+
+# ---------------------------------------------------------------------------
+# one and three motors
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("n_motors", [1, 3])
+@pytest.mark.parametrize("Est", [GRUResidual, MLPResidual])
+def test_round_trips_of_other_numbers_of_motors(data, tmp_path, n_motors, Est):
+    """joblib and skops files of a learner fitted on one or three motors predict alike."""
+    X, y = data
+    Xn = with_motors(X, n_motors)
+    pipe = Pipeline([("backbone", PolynomialBackbone()), ("residual", Est(**TINY))]).fit(Xn, y)
+    assert pipe["residual"].n_motors_ == n_motors
+    expected = pipe.predict(Xn)
+    persist.save(pipe, tmp_path / "joblib.skcath")
+    assert_array_equal(persist.load(tmp_path / "joblib.skcath").predict(Xn), expected)
+    pytest.importorskip("skops")
+    path = tmp_path / "skops.skcath"
+    persist.save(_copy(pipe), path, format="skops")
+    loaded = persist.load(path, trusted=persist.get_untrusted_types(path))
+    assert loaded["residual"].n_motors_ == n_motors
+    assert_array_equal(loaded.predict(Xn), expected)

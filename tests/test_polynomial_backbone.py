@@ -1,5 +1,7 @@
 """PolynomialBackbone: a memoryless polynomial of the motor angles as a backbone."""
 
+from math import comb
+
 import joblib
 import numpy as np
 import pandas as pd
@@ -12,9 +14,11 @@ from sklearn.utils.estimator_checks import parametrize_with_checks
 from test_common import EXPECTED_FAILED_CHECKS, run_check
 
 from skcath import MOTOR_COLUMNS, REFERENCE_COLUMNS
-from skcath.backbones import PolynomialBackbone
+from skcath.backbones import PolynomialBackbone, PolynomialParams, polynomial_kernel, polynomial_tip
 from skcath.datasets import simulate_run
 from skcath.residuals import NoResidual
+
+from _helpers import with_motors
 
 # The backbone runs no solver, so the two n_iter checks pass; every other
 # generic check fails as for the geometric backbones, on the array input.
@@ -193,3 +197,66 @@ def test_bad_input_is_a_clear_error(recordings):
     all_nan = np.full_like(y, np.nan)
     with pytest.raises(ValueError, match="finite tip position"):
         PolynomialBackbone(calibration="fit").fit(X, all_nan)
+
+
+# ---------------------------------------------------------------------------
+# any number of motors; the kernel and the calibration
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("n_motors", [1, 2, 3])
+def test_any_number_of_motors(recordings, n_motors):
+    X, y = recordings
+    Xn = with_motors(X, n_motors)
+    motors = [f"q{k}" for k in range(1, n_motors + 1)]
+    sweep = (Xn["phase"] == "sweep").to_numpy()
+    ref = Xn[list(REFERENCE_COLUMNS)].to_numpy()
+    for calibration in ("sweep", "fit"):
+        est = PolynomialBackbone(degree=2, calibration=calibration).fit(Xn, y)
+        assert est.n_motors_ == n_motors
+        b = est.predict(Xn)
+        assert b.shape == (len(Xn), 3) and np.isfinite(b).all()
+        cal = est.calibrate(Xn)
+        assert_array_equal(cal.nominal, b)
+        params = cal.params["run-a"]
+        assert params.n_motors == n_motors
+        assert params.powers.shape == (comb(n_motors + 2, 2), n_motors)
+        assert cal.table.loc["run-a", "n_motors"] == n_motors
+        rows = (Xn["run"] == "run-a").to_numpy()
+        assert_allclose(polynomial_tip(Xn.loc[rows, motors].to_numpy(), params), b[rows],
+                        rtol=0, atol=0)
+    # the sweep fit: the sweep RMSE of the table is that of the nominal tips
+    est = PolynomialBackbone(degree=2).fit(Xn)
+    cal = est.calibrate(Xn)
+    rows = sweep & (Xn["run"] == "run-b").to_numpy()
+    rmse = np.sqrt(np.mean(np.sum((cal.nominal[rows] - ref[rows]) ** 2, axis=1)))
+    assert cal.table.loc["run-b", "rmse_mm"] == pytest.approx(rmse)
+    assert (cal.table["play_width_deg"] == 0).all()
+
+
+@pytest.mark.parametrize("n_motors", [1, 3])
+def test_kernel_is_the_fitted_polynomial(recordings, n_motors):
+    """polynomial_kernel on the packed parameters gives the scikit-learn polynomial."""
+    X, y = recordings
+    Xn = with_motors(X, n_motors)
+    est = PolynomialBackbone(degree=3, calibration="fit").fit(Xn, y)
+    q = Xn[[f"q{k}" for k in range(1, n_motors + 1)]].to_numpy()
+    expected = est.polynomial_.predict(q)
+    params = PolynomialParams.from_polynomial(est.polynomial_)
+    assert_allclose(est.predict(Xn), expected, rtol=0, atol=1e-9)
+    theta = params.pack()
+    for k in (0, 100, len(q) - 1):
+        assert_allclose(polynomial_kernel(theta, q[k]), expected[k], rtol=0, atol=1e-9)
+        assert_allclose(polynomial_kernel(theta.tolist(), q[k].tolist()), expected[k],
+                        rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match=rf"q must have shape \(n, {n_motors}\)"):
+        polynomial_tip(q[:, :1] if n_motors == 3 else np.c_[q, q], params)
+
+
+def test_fitted_polynomial_refuses_another_number_of_motors(recordings):
+    X, y = recordings
+    est = PolynomialBackbone(calibration="fit").fit(X, y)
+    with pytest.raises(ValueError, match=r"fitted on recordings of 2 motor\(s\), but X has 3 "
+                       r"\(q1, q2, q3\)"):
+        est.predict(with_motors(X, 3))
+    # calibrated on each sweep, the number of motors may differ from fit's
+    b = PolynomialBackbone().fit(X).predict(with_motors(X, 3))
+    assert np.isfinite(b).all()

@@ -33,7 +33,7 @@ from sklearn.model_selection import GridSearchCV, GroupKFold, cross_validate
 from sklearn.pipeline import Pipeline
 from skorch.callbacks import Callback
 
-from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
+from skcath.backbones import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone, PolynomialBackbone
 from skcath.datasets import make_benchmark
 from skcath.metrics import mean_per_run_rmse, per_run_rmse, run_rmse_scorer
 from skcath.residuals import (
@@ -52,7 +52,7 @@ from skcath.residuals import _estimators
 from skcath.residuals._features import cut_windows, feature_frame, pool_sweep
 from skcath.residuals._modules import on_cpu
 
-from _helpers import tiny_residual
+from _helpers import tiny_residual, with_motors
 
 LEARNERS = [GRUResidual, MLPResidual]
 B = list(BACKBONE_COLUMNS)
@@ -1355,3 +1355,79 @@ def test_gru_beats_its_backbone_on_held_out_settings(bench, transformed):
     # every held-out run is better (about 0.7-0.8 of the backbone's error)
     assert (learned < 0.95 * backbone).all(), (learned / backbone).to_dict()
     assert learned.mean() < 0.9 * backbone.mean(), (learned.mean(), backbone.mean())
+
+
+# ---------------------------------------------------------------------------
+# one, two and three motors, with and without torques
+# ---------------------------------------------------------------------------
+def test_feature_names_for_any_number_of_motors():
+    assert step_feature_names() == ("q1", "q2", "dq1", "dq2", "tau1", "tau2", *B)
+    assert step_feature_names(True, 1) == ("q1", "dq1", "tau1", *B)
+    assert step_feature_names(False, 3) == ("q1", "q2", "q3", "dq1", "dq2", "dq3", *B)
+    assert len(step_feature_names(True, 3)) == 3 * 3 + 3
+    assert sweep_feature_names(True, 3) == ("q1", "q2", "q3", "tau1", "tau2", "tau3")
+    assert sweep_feature_names(False, 1) == ("q1",)
+
+
+@pytest.fixture(scope="module")
+def motors(small):
+    """Lazily built (Xb, y) of ``small`` turned into ``n`` motors, polynomial backbone."""
+    X, _, y = small
+    cache = {}
+
+    def get(n_motors, torques=True):
+        if (n_motors, torques) not in cache:
+            Xn = with_motors(X, n_motors, torques=torques)
+            cache[n_motors, torques] = (PolynomialBackbone().fit(Xn).transform(Xn), y)
+        return cache[n_motors, torques]
+
+    return get
+
+
+@pytest.mark.parametrize("Est", LEARNERS)
+@pytest.mark.parametrize("n_motors, torques", [(1, True), (3, True), (3, False), (1, False)])
+def test_learners_fit_any_number_of_motors(motors, Est, n_motors, torques):
+    Xb, y = motors(n_motors, torques)
+    est = tiny_residual(Est, use_torque=torques).fit(Xb, y)
+    assert est.n_motors_ == n_motors
+    width = (3 if torques else 2) * n_motors + 3
+    assert est.x_scaler_.mean.shape == (width,)
+    assert est.s_scaler_.mean.shape == ((2 if torques else 1) * n_motors,)
+    F, _, _ = feature_frame(Xb)
+    assert_allclose(est.x_scaler_.mean[n_motors:2 * n_motors],
+                    F.loc[_motion(Xb), [f"dq{k}" for k in range(1, n_motors + 1)]].mean(), rtol=1e-9,
+                    atol=1e-12)
+    pred = est.predict(Xb)
+    assert pred.shape == (len(Xb), 3) and np.isfinite(pred).all()
+    # sweep rows keep the backbone, motion rows are corrected
+    b = Xb[B].to_numpy()
+    assert_array_equal(pred[~_motion(Xb)], b[~_motion(Xb)])
+    assert np.abs(pred[_motion(Xb)] - b[_motion(Xb)]).max() > 0
+    # reproducible, and a clone refits to the same predictions
+    assert_array_equal(clone(est).fit(Xb, y).predict(Xb), pred)
+    # pickled, the network keeps its input size
+    assert_array_equal(pickle.loads(pickle.dumps(est)).predict(Xb), pred)
+    if torques:
+        assert est.encode_context(Xb).shape == (3, 4)
+
+
+def test_a_third_motor_changes_the_prediction(motors):
+    """The network reads the third motor: changing q3 on motion rows changes the residual."""
+    Xb, y = motors(3)
+    est = tiny_residual(GRUResidual).fit(Xb, y)
+    moved = Xb.copy()
+    moved.loc[_motion(Xb), "q3"] += 5.0
+    assert np.abs(est.predict_residual(moved) - est.predict_residual(Xb)).max() > 1e-4
+
+
+def test_partial_fit_and_pretrained_keep_the_number_of_motors(motors):
+    Xb3, y = motors(3)
+    Xb1, _ = motors(1)
+    est = tiny_residual(MLPResidual).fit(Xb3, y)
+    with pytest.raises(ValueError, match=r"fitted on recordings of 3 motor\(s\).*X has 1"):
+        est.partial_fit(Xb1, y)
+    with pytest.raises(ValueError, match=r"pretrained was fitted on recordings of 3 motor\(s\) "
+                       r"but X has 1"):
+        tiny_residual(MLPResidual, pretrained=FrozenEstimator(est)).fit(Xb1, y)
+    tuned = tiny_residual(MLPResidual, pretrained=FrozenEstimator(est)).fit(Xb3, y)
+    assert tuned.n_motors_ == 3

@@ -1,5 +1,7 @@
 """Tests of skcath._validation: the shared validation path of the long format."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -13,6 +15,7 @@ from skcath._validation import (
     _group_medians,
     check_recordings,
     check_target,
+    motor_columns,
 )
 
 NUMERIC = ["t", "q1", "q2", "tau1", "tau2", "ref_x", "ref_y", "ref_z"]
@@ -531,3 +534,67 @@ def test_run_without_sweep_names_the_cut_run_fix():
     with pytest.raises(ValueError, match=r"Run\(s\) 'r1' have no 'sweep' rows.*cut a run.*"
                        r"groups=X\['run'\].*LeaveOneSettingOut"):
         check_recordings(X[~rows], y[~rows])
+
+
+# ---------------------------------------------------------------------------
+# any number of motors, torques optional
+# ---------------------------------------------------------------------------
+def _motors(X, n_motors, torques=True):
+    """``X`` of ``make_recordings`` with ``n_motors`` motors (q3, tau3 drawn at random)."""
+    rng = np.random.default_rng(5)
+    X = X.drop(columns=["q2", "tau2"]) if n_motors == 1 else X.copy()
+    for k in range(3, n_motors + 1):
+        X[f"q{k}"] = rng.normal(size=len(X))
+        X[f"tau{k}"] = rng.normal(size=len(X))
+    if not torques:
+        X = X.drop(columns=[c for c in X.columns if c.startswith("tau")])
+    return X
+
+
+@pytest.mark.parametrize("n_motors", [1, 2, 3, 4])
+@pytest.mark.parametrize("torques", [True, False])
+def test_motor_columns_reads_the_motors_and_torques(n_motors, torques):
+    X = _motors(make_recordings()[0], n_motors, torques)
+    motors, torque_columns = motor_columns(X)
+    assert motors == tuple(f"q{k}" for k in range(1, n_motors + 1))
+    assert torque_columns == (tuple(f"tau{k}" for k in range(1, n_motors + 1)) if torques else ())
+    # the columns alone decide: an empty frame and column order do not matter
+    assert motor_columns(X.iloc[:0, ::-1]) == (motors, torque_columns)
+
+
+@pytest.mark.parametrize("n_motors", [1, 3])
+@pytest.mark.parametrize("torques", [True, False])
+def test_recordings_of_any_number_of_motors_are_checked(n_motors, torques):
+    X, y = make_recordings()
+    X = _motors(X, n_motors, torques)
+    X_checked, _ = check_recordings(X, y)
+    pd.testing.assert_frame_equal(X_checked, X)
+    # every motor and torque column is a numeric channel that must be finite
+    last = f"tau{n_motors}" if torques else f"q{n_motors}"
+    X_bad = X.copy()
+    X_bad.loc[X.index[5], last] = np.nan
+    with pytest.raises(ValueError, match=rf"Column '{last}' contains 1 non-finite value"):
+        check_recordings(X_bad, y)
+    X_text = X.astype({last: object})
+    X_text.loc[X.index[2], last] = "1.5"
+    assert check_recordings(X_text)[0][last].dtype == np.float64
+
+
+@pytest.mark.parametrize(
+    "drop, add, missing",
+    [
+        (["q2"], {}, "['q2']"),
+        (["tau1"], {}, "['tau1']"),
+        ([], {"q4": 0.0}, "['q3', 'tau3', 'tau4']"),
+        ([], {"q3": 0.0}, "['tau3']"),
+    ],
+    ids=["motor-gap", "torque-gap", "motor-beyond-a-gap", "torques-of-some-motors"],
+)
+def test_channel_gaps_are_named(drop, add, missing):
+    X, _ = make_recordings()
+    X = X.drop(columns=drop).assign(**add)
+    expected = re.escape(f"missing the column(s) {missing}") + r".*without a gap"
+    with pytest.raises(ValueError, match=expected):
+        motor_columns(X)
+    with pytest.raises(ValueError, match=expected):
+        check_recordings(X)

@@ -1,11 +1,11 @@
-"""Geometric backbones: nominal tip position from motor angles, calibrated per run."""
+"""Backbones: nominal tip position from motor angles, calibrated per run (or once)."""
 
 from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ._hysteresis import identify_play_width, play_kernel, play_operator
 from ._lm import LMResult, levenberg_marquardt
 from ._pcc import PCCParams, calibrate_pcc, pcc_kernel, pcc_tip
 from ._pdl import PDLParams, calibrate_pdl, pdl_kernel, pdl_tip
-from ._polynomial import PolynomialBackbone
+from ._polynomial import PolynomialBackbone, PolynomialParams, polynomial_kernel, polynomial_tip
 
 __all__ = [
     "BACKBONE_COLUMNS",
@@ -15,6 +15,7 @@ __all__ = [
     "PDLBackbone",
     "PDLParams",
     "PolynomialBackbone",
+    "PolynomialParams",
     "calibrate_pcc",
     "calibrate_pdl",
     "identify_play_width",
@@ -25,4 +26,6 @@ __all__ = [
     "pdl_tip",
     "play_kernel",
     "play_operator",
+    "polynomial_kernel",
+    "polynomial_tip",
 ]

@@ -23,13 +23,13 @@ from sklearn.utils.validation import check_is_fitted
 from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._runs import run_codes, run_positions
-from .._validation import check_recordings
+from .._validation import check_recordings, motor_columns
 from ..sweep import check_sweep_references, find_rays
 from ._hysteresis import identify_play_width, play_operator
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
 
-__all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone"]
+__all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone", "check_two_motors"]
 
 #: Columns that ``transform`` appends: the nominal tip position (mm, base frame).
 BACKBONE_COLUMNS = ("b_x", "b_y", "b_z")
@@ -74,6 +74,22 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
     n_features_in_ : int
         Number of columns of ``X`` seen in ``fit``. The calibrations of the
         runs of ``X`` are returned by :meth:`calibrate`, not kept."""
+
+
+def check_two_motors(X, owner):
+    """Raise unless the recordings ``X`` have two motors, ``q1`` and ``q2``.
+
+    The geometric backbones model a catheter bent by two motors (two
+    bending planes); recordings of another number of motors get an error
+    that names it and points to :class:`PolynomialBackbone`.
+    """
+    motors, _ = motor_columns(X)
+    if len(motors) != 2:
+        raise ValueError(
+            f"{owner} models a catheter with two bending motors (q1, q2), but the "
+            f"recordings have {len(motors)} motor(s) ({', '.join(motors)}). Use "
+            "PolynomialBackbone, which takes any number of motors, as the backbone."
+        )
 
 
 def _calibrate_run(backbone, run, q, ref, sweep):
@@ -142,6 +158,7 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         self : object
         """
         X, _ = check_recordings(X, y)
+        check_two_motors(X, type(self).__name__)
         self._record_columns(X)
         return self
 
@@ -183,6 +200,7 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
 
     def _calibrate_checked(self, X):
         """:meth:`calibrate` on recordings already checked."""
+        check_two_motors(X, type(self).__name__)
         _, runs = run_codes(X)
         positions = run_positions(X)
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
@@ -311,7 +329,8 @@ class PCCBackbone(_BaseBackbone):
     The data format is described in ``docs/data_format.rst``. Each run must
     start with its sweep rows, whose reference columns ``ref_x``, ``ref_y``,
     ``ref_z`` are the calibration targets; motion rows are predicted from the
-    motor angles alone.
+    motor angles alone. The model has two motors, ``q1`` and ``q2``; for
+    recordings of another number of motors use :class:`PolynomialBackbone`.
 
     Examples
     --------
@@ -361,7 +380,9 @@ class PDLBackbone(_BaseBackbone):
 
     Notes
     -----
-    The data format is described in ``docs/data_format.rst``.
+    The data format is described in ``docs/data_format.rst``. The model has
+    two motors, ``q1`` and ``q2``; for recordings of another number of
+    motors use :class:`PolynomialBackbone`.
 
     Examples
     --------

@@ -1,12 +1,15 @@
 """A memoryless polynomial of the motor angles as a backbone.
 
 The nominal tip ``b = P(q)`` is a least-squares polynomial of the motor
-angles: the angles are standardised, expanded into all monomials up to a
-degree and mapped linearly to the three tip coordinates (mm). It needs no
-model of the catheter's geometry, so it serves where the geometric
-backbones do not apply (a probe whose sweep is not the paper's 8-ray sweep,
-one motor, motor positions in encoder counts) and as the memoryless
-baseline of a residual learner.
+angles ``q = (q1, ..., qN)``: the angles are standardised, expanded into all
+monomials up to a degree and mapped linearly to the three tip coordinates
+(mm). It needs no model of the catheter's geometry, so it serves where the
+geometric backbones do not apply (any number of motors, a probe whose sweep
+is not the paper's 8-ray sweep, motor positions in encoder counts) and as
+the memoryless baseline of a residual learner. A fitted polynomial is a
+:class:`PolynomialParams`; :func:`polynomial_kernel` evaluates it at one
+sample (the streaming step runs it too), :func:`polynomial_tip` on every
+row.
 
 Two ways to fit it:
 
@@ -20,24 +23,172 @@ Two ways to fit it:
   identify the polynomial.
 """
 
+from __future__ import annotations
+
+from dataclasses import dataclass
 from math import comb
 from numbers import Integral
 
 import numpy as np
+import pandas as pd
 from sklearn.base import BaseEstimator, RegressorMixin, TransformerMixin, _fit_context
 from sklearn.linear_model import LinearRegression
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import PolynomialFeatures, StandardScaler
+from sklearn.utils import Bunch
 from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
+from .._kernel import compiled, kernel
 from .._runs import run_codes, run_positions
-from .._validation import check_recordings
+from .._validation import check_recordings, motor_columns
 from ._backbone import BACKBONE_COLUMNS
 
-__all__ = ["PolynomialBackbone"]
+__all__ = ["PolynomialBackbone", "PolynomialParams", "polynomial_kernel", "polynomial_tip"]
+
+
+@dataclass(frozen=True)
+class PolynomialParams:
+    """A fitted polynomial ``b = P(q)`` of the angles of ``n_motors`` motors.
+
+    .. math::
+
+        P(q) = c_0 + \\sum_\\alpha c_\\alpha\\, \\bar q^{\\alpha},
+        \\qquad \\bar q = (q - \\mu_q) / \\sigma_q.
+
+    Attributes
+    ----------
+    mean : ndarray of shape (n_motors,)
+        Centre :math:`\\mu_q` of the standardisation (deg): the mean of
+        the motor angles the polynomial was fitted on.
+    scale : ndarray of shape (n_motors,)
+        Scale :math:`\\sigma_q` (deg); 1 for a motor that did not move.
+    powers : ndarray of int, shape (n_terms, n_motors)
+        Exponent of every motor in every monomial :math:`\\bar q^\\alpha`.
+    coef : ndarray of shape (n_terms, 3)
+        Coefficients :math:`c_\\alpha` of every monomial (mm).
+    intercept : ndarray of shape (3,)
+        :math:`c_0` (mm).
+    """
+
+    mean: np.ndarray
+    scale: np.ndarray
+    powers: np.ndarray
+    coef: np.ndarray
+    intercept: np.ndarray
+
+    def __post_init__(self):
+        for name in ("mean", "scale", "powers", "coef", "intercept"):
+            value = np.array(getattr(self, name), dtype=np.int64 if name == "powers" else float)
+            value.setflags(write=False)  # read-only copies, as the other parameter classes
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def from_polynomial(cls, polynomial):
+        """The parameters of a fitted ``StandardScaler, PolynomialFeatures, LinearRegression`` pipeline."""
+        scaler, features, linear = (step for _, step in polynomial.steps)
+        return cls(mean=scaler.mean_, scale=scaler.scale_, powers=features.powers_,
+                   coef=linear.coef_.T, intercept=linear.intercept_)
+
+    @property
+    def n_motors(self):
+        """Number of motors the polynomial takes."""
+        return self.mean.shape[0]
+
+    def to_dict(self):
+        """Summary for a calibration table: motors, degree and number of monomials."""
+        return {"n_motors": self.n_motors, "degree": int(self.powers.sum(axis=1).max()),
+                "n_terms": self.powers.shape[0]}
+
+    def pack(self):
+        """The parameters as one float64 vector, the layout :func:`polynomial_kernel` reads.
+
+        ``[n_motors, n_terms, mean, scale, powers (term by term), coef
+        (term by term, 3 each), intercept]``.
+        """
+        n, m = self.n_motors, self.powers.shape[0]
+        return np.concatenate([[n, m], self.mean, self.scale, self.powers.ravel(),
+                               self.coef.ravel(), self.intercept]).astype(np.float64)
+
+
+@kernel
+def polynomial_kernel(theta, q):
+    """Tip ``(x, y, z)`` (mm) of a packed polynomial (:meth:`PolynomialParams.pack`).
+
+    Parameters
+    ----------
+    theta : ndarray or list of float
+        The packed parameters.
+    q : ndarray of shape (n_motors,)
+        Motor angles (deg).
+
+    Returns
+    -------
+    x, y, z : float
+        Tip position in the base frame (mm).
+    """
+    n = int(theta[0])
+    m = int(theta[1])
+    at_powers = 2 + 2 * n
+    at_coef = at_powers + m * n
+    at_intercept = at_coef + 3 * m
+    x = theta[at_intercept]
+    y = theta[at_intercept + 1]
+    z = theta[at_intercept + 2]
+    for t in range(m):
+        v = 1.0
+        for j in range(n):
+            u = (q[j] - theta[2 + j]) / theta[2 + n + j]
+            for _ in range(int(theta[at_powers + t * n + j])):
+                v *= u
+        c = at_coef + 3 * t
+        x += theta[c] * v
+        y += theta[c + 1] * v
+        z += theta[c + 2] * v
+    return x, y, z
+
+
+def _polynomial_rows(theta, q, x, y, z):
+    """Rows of :func:`polynomial_kernel`: ``(x[i], y[i], z[i]) = P(q[i])``."""
+    for i in range(len(q)):
+        x[i], y[i], z[i] = polynomial_kernel(theta, q[i])
+
+
+def polynomial_tip(q, params):
+    """Tip position of a fitted polynomial at every row of ``q``.
+
+    Every row is evaluated by :func:`polynomial_kernel`, in a loop compiled
+    by numba where it is available and in Python otherwise.
+
+    Parameters
+    ----------
+    q : array-like of shape (n, n_motors)
+        Motor angles (deg).
+    params : PolynomialParams
+        The polynomial.
+
+    Returns
+    -------
+    tip : ndarray of shape (n, 3)
+        Tip positions in the base frame (mm).
+    """
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != params.n_motors:
+        raise ValueError(
+            f"q must have shape (n, {params.n_motors}): the angles of the "
+            f"{params.n_motors} motor(s) of the polynomial; got {q.shape}."
+        )
+    n = q.shape[0]
+    fast = compiled(_polynomial_rows)
+    if fast is not None:
+        x, y, z = np.empty(n), np.empty(n), np.empty(n)
+        fast(params.pack(), q, x, y, z)
+    else:  # Python reads list items faster than array items
+        x, y, z = [0.0] * n, [0.0] * n, [0.0] * n
+        _polynomial_rows(params.pack().tolist(), q.tolist(), x, y, z)
+    return np.column_stack([x, y, z])
 
 
 def _fit_polynomial(q, tip, degree):
@@ -70,8 +221,8 @@ def _finite_rows(tip):
 class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstimator):
     """Memoryless polynomial ``b = P(q)`` of the motor angles, fitted by least squares.
 
-    The motor angles ``q`` (the columns ``skcath.MOTOR_COLUMNS``) are
-    standardised, expanded into all monomials of total degree up to
+    The motor angles ``q = (q1, ..., qN)`` of any number of motors ``N``
+    (:func:`skcath.motor_columns`) are standardised, expanded into all monomials of total degree up to
     ``degree`` and mapped linearly to the tip position (mm, base frame):
 
     .. math::
@@ -107,6 +258,9 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         ``transform`` requires the same and appends ``b_x, b_y, b_z``.
     n_features_in_ : int
         How many columns those recordings had.
+    n_motors_ : int
+        Number of motors of those recordings. With ``calibration="fit"``,
+        recordings of another number of motors are refused.
     polynomial_ : sklearn.pipeline.Pipeline or None
         With ``calibration="fit"``: the fitted polynomial
         (``StandardScaler``, ``PolynomialFeatures``, ``LinearRegression``)
@@ -119,7 +273,10 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
 
     Notes
     -----
-    ``predict`` and ``transform`` read only the motor angles of motion rows
+    Both calibrations evaluate the fitted polynomial (:class:`PolynomialParams`,
+    one per run, returned by :meth:`calibrate`) with :func:`polynomial_kernel`,
+    the function the streaming step of :class:`skcath.online.OnlineEstimator`
+    runs. ``predict`` and ``transform`` read only the motor angles of motion rows
     (and, with ``calibration="sweep"``, the reference tip of sweep rows);
     they never change the fitted estimator. A run calibrated on its sweep
     needs more sweep rows with a finite reference than the polynomial has
@@ -170,46 +327,101 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
                 "to calibrate every run on its own sweep."
             )
         X, y = check_recordings(X, y, require_sweep=by_sweep)
+        motors, _ = motor_columns(X)
         self._record_columns(X)
+        self.n_motors_ = len(motors)
         self.polynomial_ = None
         if not by_sweep:
-            q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
+            q = X[list(motors)].to_numpy(dtype=np.float64)
             keep = _finite_rows(y)
-            self._check_enough_rows(int(keep.sum()), "the training recordings")
+            self._check_enough_rows(int(keep.sum()), len(motors), "the training recordings")
             self.polynomial_ = _fit_polynomial(q[keep], y[keep], self.degree)
         return self
 
-    def _check_enough_rows(self, n_rows, where):
+    def _check_enough_rows(self, n_rows, n_motors, where):
         """Raise unless ``n_rows`` rows with a finite target can determine the polynomial."""
-        n_coef = comb(len(fmt.MOTOR_COLUMNS) + self.degree, self.degree)
+        n_coef = comb(n_motors + self.degree, self.degree)
         if n_rows <= self.degree or n_rows < n_coef:
             raise ValueError(
-                f"PolynomialBackbone(degree={self.degree}) has {n_coef} coefficients per "
-                f"coordinate but {where} have {n_rows} rows with a finite tip position; "
-                "lower the degree or give more rows."
+                f"PolynomialBackbone(degree={self.degree}) of {n_motors} motor(s) has {n_coef} "
+                f"coefficients per coordinate but {where} have {n_rows} rows with a finite "
+                "tip position; lower the degree or give more rows."
             )
 
-    def _sweep_polynomials(self, X, q):
-        """Nominal tip of every row, each run's polynomial fitted on its own sweep rows."""
+    def _run_params(self, X, q):
+        """The polynomial of every run: fitted on its sweep rows, or the one of ``fit``."""
         _, runs = run_codes(X)
+        positions = run_positions(X)
+        if self.polynomial_ is not None:
+            params = PolynomialParams.from_polynomial(self.polynomial_)
+            return runs, positions, [params] * len(runs)
+        ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64)
+        sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        fitted = []
+        for run, pos in zip(runs, positions):
+            rows = pos[sweep[pos] & _finite_rows(ref[pos])]
+            self._check_enough_rows(len(rows), q.shape[1], f"the sweep rows of run {run!r}")
+            polynomial = _fit_polynomial(q[rows], ref[rows], self.degree)
+            fitted.append(PolynomialParams.from_polynomial(polynomial))
+        return runs, positions, fitted
+
+    def calibrate(self, X):
+        """The polynomial of every run of ``X``; the estimator is left unchanged.
+
+        What ``predict`` and ``transform`` do for each run, with the
+        polynomials themselves returned: with ``calibration="sweep"`` each
+        run's own, fitted on its sweep rows, with ``calibration="fit"`` the
+        one fitted in ``fit`` for every run.
+
+        Parameters
+        ----------
+        X : pandas.DataFrame
+            Recordings in the long format (each run with its sweep rows and
+            reference tip when ``calibration="sweep"``).
+
+        Returns
+        -------
+        calibration : sklearn.utils.Bunch
+            As :meth:`PDLBackbone.calibrate`: ``table`` (indexed by run id:
+            ``n_motors``, ``degree``, ``n_terms``, the RMSE ``rmse_mm`` (mm)
+            on the run's sweep rows with a finite reference, NaN without
+            any, and ``play_width_deg``, always 0), ``params`` (run id ->
+            :class:`PolynomialParams`), ``play_widths`` (run id -> 0.0) and
+            ``nominal`` (ndarray of shape (n_samples, 3), mm).
+        """
+        check_is_fitted(self)
+        X, _ = check_recordings(X, require_sweep=self.calibration == "sweep")
+        return self._calibrate_checked(X)
+
+    def _calibrate_checked(self, X):
+        """:meth:`calibrate` on recordings already checked."""
+        motors, _ = motor_columns(X)
+        if self.polynomial_ is not None and len(motors) != self.n_motors_:
+            raise ValueError(
+                f"This PolynomialBackbone was fitted on recordings of {self.n_motors_} "
+                f"motor(s), but X has {len(motors)} ({', '.join(motors)})."
+            )
+        q = X[list(motors)].to_numpy(dtype=np.float64)
         ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64)
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
         nominal = np.empty((len(X), 3))
-        for run, pos in zip(runs, run_positions(X)):
+        records, params = [], {}
+        for run, pos, par in zip(*self._run_params(X, q)):
+            nominal[pos] = polynomial_tip(q[pos], par)
+            params[run] = par
             rows = pos[sweep[pos] & _finite_rows(ref[pos])]
-            self._check_enough_rows(len(rows), f"the sweep rows of run {run!r}")
-            polynomial = _fit_polynomial(q[rows], ref[rows], self.degree)
-            nominal[pos] = polynomial.predict(q[pos])
-        return nominal
+            error = np.sum((nominal[rows] - ref[rows]) ** 2, axis=1)
+            rmse = float(np.sqrt(error.mean())) if rows.size else np.nan
+            records.append({fmt.RUN: run, **par.to_dict(), "rmse_mm": rmse, "play_width_deg": 0.0})
+        table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
+        return Bunch(table=table, params=params, play_widths=dict.fromkeys(params, 0.0),
+                     nominal=nominal)
 
     def _nominal(self, X):
         """The checked recordings and the nominal tip of every row (mm)."""
         check_is_fitted(self)
         X, _ = check_recordings(X, require_sweep=self.calibration == "sweep")
-        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-        if self.polynomial_ is None:
-            return X, self._sweep_polynomials(X, q)
-        return X, self.polynomial_.predict(q)
+        return X, self._calibrate_checked(X).nominal
 
     def predict(self, X):
         """Nominal tip position ``P(q)`` of every row.

@@ -17,8 +17,8 @@ import pandas as pd
 from pandas.api import types as pdt
 
 from .._format import (
-    ID_COLUMNS, MOTION, MOTOR_COLUMNS, PHASE, PHASES, REFERENCE_COLUMNS, REQUIRED_COLUMNS, RUN,
-    SENSOR_POSE_COLUMNS, SWEEP, TARGET_NAMES, TIME, TORQUE_COLUMNS,
+    ID_COLUMNS, MOTION, MOTOR_PREFIX, PHASE, PHASES, REFERENCE_COLUMNS, RUN, SENSOR_POSE_COLUMNS,
+    SWEEP, TARGET_NAMES, TIME, TORQUE_PREFIX, channel_index, motor_names, torque_names,
 )
 from .._runs import run_codes, run_steps
 from .._validation import check_recordings
@@ -87,7 +87,8 @@ class _Source:
         """
         present = set(frame.columns)
         columns = {}
-        for name in SINGLE_NAMES:
+        channels = [c for c in (*mapping, *frame.columns) if channel_index(c) is not None]
+        for name in dict.fromkeys((*SINGLE_NAMES, *channels)):
             if name in mapping:
                 file_column = mapping[name]
                 if file_column not in present:
@@ -386,11 +387,33 @@ def _channel(source, constants, name):
         return source.numeric(name)
     if name in constants:
         return np.full(len(source), constants[name], dtype=np.float64)
+    no_torque = (
+        ", or pass torques=False for a rig without torque sensing"
+        if channel_index(name)[0] == TORQUE_PREFIX else ""
+    )
     raise ValueError(
         f"{source.label}: the file has no {name!r} column; map it with "
-        f"columns={{{name!r}: ...}} or set it with constants={{{name!r}: value}}; "
+        f"columns={{{name!r}: ...}} or set it with constants={{{name!r}: value}}{no_torque}; "
         f"{source.found}."
     )
+
+
+def _channel_names(source, options):
+    """The motor and torque channels of the recording read: ``q1 .. qN`` and ``tau1 .. tauN``.
+
+    ``N`` is the largest ``k`` of a channel ``qk`` or ``tauk`` found in the
+    file or set by ``constants`` (1 when there is none); every channel up to
+    ``N`` is then needed, from the file or from ``constants``. Without
+    torques (``options.torques`` False) no ``tauk`` counts.
+    """
+    indices = [channel_index(c) for c in (*source.columns, *options.constants)]
+    kinds = (MOTOR_PREFIX, TORQUE_PREFIX) if options.torques else (MOTOR_PREFIX,)
+    n_motors = 1
+    for index in indices:
+        if index is not None and index[0] in kinds:
+            n_motors = max(n_motors, index[1])
+    torques = torque_names(n_motors) if options.torques else ()
+    return (*motor_names(n_motors), *torques)
 
 
 def _valid_rows(source, column, accepted):
@@ -587,12 +610,14 @@ def recording_from_table(frame, name, stem, options):
         TIME: _time_values(source, codes, options.rate_hz),
         PHASE: _phase_values(source, codes, runs, options.phase, options.n_sweep),
     }
-    for channel in (*MOTOR_COLUMNS, *TORQUE_COLUMNS):
+    channels = _channel_names(source, options)
+    for channel in channels:
         data[channel] = _channel(source, options.constants, channel)
     y = _target_values(source, options.tip_offset, invalid)
     ref = _reference_values(source, y, data[PHASE] == SWEEP, invalid)
     data.update(zip(REFERENCE_COLUMNS, ref.T))
-    X = pd.DataFrame(data, index=pd.RangeIndex(len(frame)), columns=list(REQUIRED_COLUMNS))
+    order = [*ID_COLUMNS, TIME, PHASE, *channels, *REFERENCE_COLUMNS]
+    X = pd.DataFrame(data, index=pd.RangeIndex(len(frame)), columns=order)
     try:
         return check_recordings(X, y, require_sweep=options.require_sweep)
     except ValueError as exc:

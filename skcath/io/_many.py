@@ -15,7 +15,7 @@ import pandas as pd
 from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
-from .._format import CATHETER, ID_COLUMNS, RUN, SETTING
+from .._format import CATHETER, ID_COLUMNS, RUN, SETTING, channel_index
 from .._validation import check_recordings
 from ._errors import naming_the_file
 from ._options import OPTION_NAMES, check_option_names
@@ -159,6 +159,11 @@ def _read_manifest(manifest):
     return jobs
 
 
+def _channels(X):
+    """The motor and torque columns of a recording read, as a list."""
+    return [c for c in X.columns if channel_index(c) is not None]
+
+
 @validate_params(
     {
         "source": "no_validation",
@@ -282,6 +287,14 @@ def read_recordings(
                     "or a manifest 'run' column."
                 )
             owner[run] = path.name
+        if frames and list(X.columns) != list(frames[0].columns):
+            first = next(iter(owner.values()))
+            raise ValueError(
+                f"{path.name} has the channels {_channels(X)} but {first} has "
+                f"{_channels(frames[0])}; the runs of one data set have the same motors "
+                "and either all have torques or none (pass constants=... or torques=False "
+                "to read them alike)."
+            )
         frames.append(X)
         targets.append(y)
     # the joined table must be valid recordings as a whole, as every reader's output is

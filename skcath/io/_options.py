@@ -9,7 +9,7 @@ holds them with their defaults and checks them once, before a file is read.
 Column names used here (the "skcath names"):
 
 - ids ``catheter``, ``setting``, ``run``; time ``t`` (s); ``phase``;
-  motor angles ``q1``, ``q2`` (degrees); torques ``tau1``, ``tau2``;
+  motor angles ``q1 .. qN`` (degrees); torques ``tau1 .. tauN``;
   reference tip ``ref_x``, ``ref_y``, ``ref_z`` (mm, base frame);
 - base-frame tip (target) ``p_x``, ``p_y``, ``p_z`` (mm);
 - raw sensor poses in the tracker frame: ``tip_px``, ``tip_py``, ``tip_pz``,
@@ -28,7 +28,8 @@ import numpy as np
 
 from .._format import (
     CATHETER, ID_COLUMNS, MOTION, MOTOR_COLUMNS, PHASES, REFERENCE_COLUMNS, REQUIRED_COLUMNS,
-    RUN, SENSOR_POSE_COLUMNS, SETTING, TARGET_NAMES, TIME, TORQUE_COLUMNS,
+    RUN, SENSOR_POSE_COLUMNS, SETTING, TARGET_NAMES, TIME, TORQUE_COLUMNS, TORQUE_PREFIX,
+    channel_index,
 )
 from .._validation import check_quat_order, check_tip_offset
 
@@ -37,9 +38,10 @@ __all__ = ["OPTION_NAMES", "SINGLE_NAMES", "ReadingOptions", "check_option_names
 _POSE_NAMES = tuple(name for names in SENSOR_POSE_COLUMNS.values() for name in names)
 _POSITION_GROUPS = ("tip_position", "base_position")
 _ORIENTATION_GROUPS = ("tip_orientation", "base_orientation")
-#: Names that ``columns`` may map, one file column each.
+#: Names that ``columns`` may map, one file column each; besides these, any
+#: motor or torque channel ``qk``, ``tauk`` (:func:`skcath._format.channel_index`).
 SINGLE_NAMES = (*REQUIRED_COLUMNS, *TARGET_NAMES, *_POSE_NAMES)
-#: Channels that ``constants`` may set.
+#: Channels that ``constants`` may set (and any other ``qk``, ``tauk``).
 _CONSTANT_NAMES = (*MOTOR_COLUMNS, *TORQUE_COLUMNS)
 #: Numeric names that ``scale`` may rescale (quaternions are normalised anyway).
 _SCALABLE_NAMES = (
@@ -156,7 +158,7 @@ def _check_columns(columns, quat_order):
     for key, value in _items(columns, "columns", "file column names"):
         if key in SENSOR_POSE_COLUMNS:
             mapping.update(_check_group(key, value, quat_order, columns))
-        elif key in SINGLE_NAMES:
+        elif key in SINGLE_NAMES or channel_index(key) is not None:
             if not isinstance(value, str):
                 raise ValueError(
                     f"columns[{key!r}] must be a file column name (str); got {value!r}."
@@ -165,7 +167,8 @@ def _check_columns(columns, quat_order):
         else:
             raise ValueError(
                 f"columns has the unknown key {key!r}; expected one of "
-                f"{list(SINGLE_NAMES)} or a sensor group {list(SENSOR_POSE_COLUMNS)}."
+                f"{list(SINGLE_NAMES)} (motors q1 .. qN, torques tau1 .. tauN) or a "
+                f"sensor group {list(SENSOR_POSE_COLUMNS)}."
             )
     return mapping
 
@@ -180,7 +183,8 @@ def _check_numbers(values, name, allowed, *, nonzero=False):
     name : str
         Option name used in error messages.
     allowed : tuple of str
-        Keys that are accepted.
+        Keys that are accepted, besides any motor or torque channel
+        ``qk``, ``tauk``.
     nonzero : bool, default=False
         Reject zero.
 
@@ -196,7 +200,7 @@ def _check_numbers(values, name, allowed, *, nonzero=False):
     """
     checked = {}
     for key, value in _items(values, name, "numbers"):
-        if key not in allowed:
+        if key not in allowed and channel_index(key) is None:
             raise ValueError(f"{name} has the key {key!r}; expected one of {list(allowed)}.")
         if not (_is_real(value) and np.isfinite(value) and (value != 0 or not nonzero)):
             what = "a finite nonzero" if nonzero else "a finite"
@@ -293,6 +297,24 @@ def _check_valid(valid):
     )
 
 
+def _check_torques(torques, columns, constants, scale):
+    """Raise unless ``torques`` is a bool, and no option names a torque when it is False."""
+    if not isinstance(torques, (bool, np.bool_)):
+        raise ValueError(
+            f"torques must be True (the file has drive torques tau1 .. tauN) or False "
+            f"(a rig without torque sensing); got {torques!r}."
+        )
+    if torques:
+        return
+    for option, names in (("columns", columns), ("constants", constants), ("scale", scale)):
+        named = [k for k in names if (channel_index(k) or ("",))[0] == TORQUE_PREFIX]
+        if named:
+            raise ValueError(
+                f"torques=False reads no torque, but {option} names {named}; leave them "
+                "out, or pass torques=True to read the torques."
+            )
+
+
 @dataclass(frozen=True)
 class ReadingOptions:
     """The keyword options of the readers of :mod:`skcath.io`, checked.
@@ -330,6 +352,9 @@ class ReadingOptions:
         Status column, optionally with the values that mean valid.
     tip_offset : tuple of 3 float or None
         Offset of the tip from the tip sensor, tip sensor frame (mm).
+    torques : bool
+        Whether the recording has drive torques ``tau1 .. tauN``; False for
+        a rig without torque sensing (no torque column is read).
 
     Raises
     ------
@@ -351,6 +376,7 @@ class ReadingOptions:
     n_sweep: int | None = None
     valid: str | tuple[str, tuple] | None = None
     tip_offset: tuple[float, float, float] | None = None
+    torques: bool = True
 
     def __post_init__(self):
         quat_order = None if self.quat_order is None else check_quat_order(self.quat_order)
@@ -365,6 +391,7 @@ class ReadingOptions:
         tip_offset = self.tip_offset
         if tip_offset is not None:
             tip_offset = tuple(check_tip_offset(tip_offset).tolist())
+        _check_torques(self.torques, columns, constants, scale)
         normalised = {
             "columns": MappingProxyType(columns),
             "constants": MappingProxyType(constants),

@@ -115,6 +115,7 @@ def read_recording(
     n_sweep=None,
     valid=None,
     tip_offset=None,
+    torques=True,
 ):
     """Read a recording exported by another tool into the long format.
 
@@ -129,8 +130,8 @@ def read_recording(
     columns : mapping, default=None
         skcath name -> file column name, for the columns whose names differ
         (all other skcath names are looked up under their own name). Keys:
-        the long-format names ``catheter, setting, run, t, phase, q1, q2,
-        tau1, tau2, ref_x, ref_y, ref_z``, the base-frame tip ``p_x, p_y,
+        the long-format names ``catheter, setting, run, t, phase, q1 .. qN,
+        tau1 .. tauN, ref_x, ref_y, ref_z``, the base-frame tip ``p_x, p_y,
         p_z`` (mm) and the sensor-pose names ``tip_px ... base_qz``.
         Quaternion components are mapped by name (``tip_qw`` -> the file's w
         column). A whole sensor may be mapped at once with the group keys
@@ -153,8 +154,11 @@ def read_recording(
         sample index within the run divided by ``rate_hz`` (s), starting at 0.
     constants : mapping, default=None
         Values of channels the file lacks, e.g. ``{"q2": 0.0, "tau2": 0.0}``
-        for a one-motor rig. Keys: ``q1, q2`` (degrees), ``tau1, tau2``;
-        values must be finite.
+        to read a one-motor rig as a two-motor one. Keys: motor angles
+        ``qk`` (degrees), torques ``tauk``; values must be finite. The
+        number of motors ``N`` is the largest ``k`` of a channel ``qk`` or
+        ``tauk`` in the file (after ``columns``) or in ``constants``; every
+        channel up to ``N`` must then be in one of them.
     scale : mapping, default=None
         skcath column -> multiplicative factor applied to the values read from
         the file, e.g. encoder counts to degrees or m to mm. Keys: ``t``,
@@ -186,12 +190,17 @@ def read_recording(
         Offset of the real tip from the tip sensor in the tip sensor frame
         (mm); needs the tip orientation columns. See
         :func:`skcath.frames.tip_in_base_frame`.
+    torques : bool, default=True
+        Whether the file has drive torques: ``tau1 .. tauN`` are read (a
+        missing one is an error). False for a rig without torque sensing:
+        no torque is read, and ``X`` has no torque column (learners then
+        need ``use_torque=False``).
 
     Returns
     -------
     X : pandas.DataFrame
         Exactly the long-format columns, in the standard order ``catheter,
-        setting, run, t, phase, q1, q2, tau1, tau2, ref_x, ref_y, ref_z``
+        setting, run, t, phase, q1 .. qN, tau1 .. tauN, ref_x, ref_y, ref_z``
         (other file columns are not kept); index ``range(n_rows)``, rows in
         file order. Ids keep the type they have in the file (or as given);
         numeric columns are float64. Where the file has no reference columns,
@@ -255,9 +264,11 @@ def read_recording(
                      "tip_orientation": ["tqx", "tqy", "tqz", "tqw"],
                      "base_position": ["bx", "by", "bz"],
                      "base_orientation": ["bqx", "bqy", "bqz", "bqw"]},
-            quat_order="xyzw", constants={"q2": 0.0, "tau2": 0.0},
-            catheter="probe", setting="default", rate_hz=10.0, n_sweep=200,
+            quat_order="xyzw", catheter="probe", setting="default", rate_hz=10.0,
+            n_sweep=200,
         )
+
+    ``X`` then has the columns ``q1``, ``tau1`` of one motor.
     """
     path = Path(path)
     kind, stem = file_kind(path)
@@ -274,5 +285,6 @@ def read_recording(
         n_sweep=n_sweep,
         valid=valid,
         tip_offset=tip_offset,
+        torques=torques,
     )
     return recording_from_table(read_table(path, kind), path.name, stem, options)

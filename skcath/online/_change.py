@@ -373,7 +373,7 @@ class ShaftChangeDetector(BaseEstimator):
             alarm until ``reset``.
         """
         self._check_started()
-        sample = real_sample(q1, q2, tau1, tau2)
+        sample = real_sample((q1, q2, tau1, tau2))
         for name, value in zip(CHANNELS, sample):
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite; got {value!r}.")

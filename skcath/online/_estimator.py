@@ -26,17 +26,28 @@ from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
 from .._runs import run_codes
-from .._validation import check_recordings
-from ..backbones import PCCBackbone, PCCParams, PDLBackbone, play_operator
+from .._validation import check_recordings, motor_columns
+from ..backbones import (
+    PCCBackbone,
+    PCCParams,
+    PDLBackbone,
+    PolynomialBackbone,
+    PolynomialParams,
+    play_operator,
+)
 from ..exceptions import PipelineChangedWarning
 from ..frames import sweep_frame
 from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
 from ..sweep import find_rays
 from ._fast import BackboneStep, NumpyStep
-from ._sample import CHANNELS, real_sample
+from ._sample import real_sample
 from ._weights import fitted_fingerprint, step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
+
+
+#: The backbones a streaming step evaluates.
+_BACKBONES = (PCCBackbone, PDLBackbone, PolynomialBackbone)
 
 
 def check_online_pipeline(pipeline):
@@ -45,13 +56,13 @@ def check_online_pipeline(pipeline):
     Parameters
     ----------
     pipeline : sklearn.pipeline.Pipeline
-        ``Pipeline([("backbone", PCCBackbone() | PDLBackbone()), ("residual",
-        NoResidual() | MLPResidual() | GRUResidual())])``, fitted; the
-        residual step may be left out.
+        ``Pipeline([("backbone", PCCBackbone() | PDLBackbone() |
+        PolynomialBackbone()), ("residual", NoResidual() | MLPResidual() |
+        GRUResidual())])``, fitted; the residual step may be left out.
 
     Returns
     -------
-    backbone : PCCBackbone or PDLBackbone
+    backbone : PCCBackbone, PDLBackbone or PolynomialBackbone
     residual : MLPResidual, GRUResidual or None
         None for a backbone alone or followed by :class:`NoResidual`.
     """
@@ -61,10 +72,11 @@ def check_online_pipeline(pipeline):
             f"learner, got {type(pipeline).__name__}."
         )
     steps = [est for _, est in pipeline.steps if est is not None and est != "passthrough"]
-    if not 1 <= len(steps) <= 2 or not isinstance(steps[0], (PCCBackbone, PDLBackbone)):
+    if not 1 <= len(steps) <= 2 or not isinstance(steps[0], _BACKBONES):
         names = [type(est).__name__ for est in steps]
         raise ValueError(
-            "pipeline must hold a backbone (PCCBackbone or PDLBackbone), optionally "
+            "pipeline must hold a backbone (PCCBackbone, PDLBackbone or PolynomialBackbone), "
+            "optionally "
             "followed by NoResidual, MLPResidual or GRUResidual; got the steps "
             f"{names}."
         )
@@ -96,10 +108,7 @@ def check_online_pipeline(pipeline):
 
 
 #: Columns of a sweep recorded without the tracker (:meth:`OnlineEstimator.resweep`).
-MOTOR_SWEEP_COLUMNS = tuple(c for c in fmt.REQUIRED_COLUMNS if c not in fmt.REFERENCE_COLUMNS)
-
-
-def _check_sweep(sweep, columns=fmt.REQUIRED_COLUMNS):
+def _check_sweep(sweep, columns="auto"):
     """Checked sweep rows of exactly one run, with the columns ``columns``."""
     X, _ = check_recordings(sweep, columns=columns)
     _, runs = run_codes(X)
@@ -119,7 +128,7 @@ def _check_sweep(sweep, columns=fmt.REQUIRED_COLUMNS):
 
 
 @validate_params(
-    {"backbone": [PCCBackbone, PDLBackbone], "sweep": "no_validation"},
+    {"backbone": list(_BACKBONES), "sweep": "no_validation"},
     prefer_skip_nested_validation=True,
 )
 def calibrate_sweep(backbone, sweep):
@@ -127,14 +136,14 @@ def calibrate_sweep(backbone, sweep):
 
     Parameters
     ----------
-    backbone : PCCBackbone or PDLBackbone
+    backbone : PCCBackbone, PDLBackbone or PolynomialBackbone
         A fitted backbone (its sweep and solver parameters are used).
     sweep : pandas.DataFrame
         The sweep rows of one run in the long format.
 
     Returns
     -------
-    params : PCCParams or PDLParams
+    params : PCCParams, PDLParams or PolynomialParams
         Calibrated parameters of the run.
     nominal : ndarray of shape (n_sweep, 3)
         Nominal tip of every sweep row (mm).
@@ -195,13 +204,16 @@ def _kept_nominal(params, q):
 
 def _motor_range(q, q_neutral, q_margin):
     """Sweep amplitude and largest accepted distance (deg) of the motor angles from neutral."""
-    amplitude = float(np.hypot(*(q - q_neutral).T).max())
+    amplitude = float(np.hypot.reduce(q - q_neutral, axis=1).max())
     return amplitude, (math.inf if q_margin is None else (1.0 + q_margin) * amplitude)
 
 
 def _neutral_angles(params):
-    """Neutral motor angles (deg) of a calibration."""
+    """Neutral motor angles (deg) of a calibration: for a polynomial, the centre of its angles."""
+    if isinstance(params, PolynomialParams):
+        return np.array(params.mean, dtype=float)
     return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
+
 
 
 class OnlineEstimator(BaseEstimator):
@@ -210,7 +222,9 @@ class OnlineEstimator(BaseEstimator):
     Wraps a fitted pipeline of a backbone and a residual learner. :meth:`start`
     calibrates the backbone on one run's sweep and encodes the sweep context
     once; :meth:`step` then returns the tip position for one motor sample
-    ``(q1, q2, tau1, tau2)``, carrying the recurrent state from call to call.
+    ``(q1, q2, tau1, tau2)`` (for ``N`` motors ``(q1 .. qN, tau1 .. tauN)``,
+    the torques only when the recordings have them), carrying the recurrent
+    state from call to call.
     Stepping through the motion samples of a run after ``start`` on its sweep
     reproduces ``pipeline.predict`` on the motion rows of that run (see
     *Notes* for the tolerance). After a shaft change, :meth:`resweep`
@@ -222,9 +236,11 @@ class OnlineEstimator(BaseEstimator):
     Parameters
     ----------
     pipeline : sklearn.pipeline.Pipeline
-        Fitted ``Pipeline([("backbone", PCCBackbone() | PDLBackbone()),
-        ("residual", NoResidual() | MLPResidual() | GRUResidual())])``; the
-        residual step may be left out. It is read, never modified.
+        Fitted ``Pipeline([("backbone", PCCBackbone() | PDLBackbone() |
+        PolynomialBackbone()), ("residual", NoResidual() | MLPResidual() |
+        GRUResidual())])``; the residual step may be left out. Any number of
+        motors with :class:`~skcath.backbones.PolynomialBackbone`; PCC and
+        PDL have two. It is read, never modified.
         :meth:`start` takes what the step needs from it (the backbone's
         calibration on the sweep, the sweep context, the network's weights
         folded with the run's constants) and keeps it: a started estimator
@@ -249,6 +265,7 @@ class OnlineEstimator(BaseEstimator):
         if they are out of range, by its last accepted value (the last
         sweep sample before the first step), step with that, and count the
         sample in ``n_held_``. A NaN never reaches the tip estimate.
+        "Both motor angles" means all of them for ``N`` motors.
     q_margin : float or None, default=0.25
         Motor angles are out of range when their distance from the neutral
         motor angles of the sweep exceeds ``1 + q_margin`` times the sweep
@@ -257,7 +274,9 @@ class OnlineEstimator(BaseEstimator):
         beyond). None accepts any finite angle.
     detector : object or None, default=None
         Optional change detector with ``start(sweep)`` (returning the
-        started detector) and ``step(q1, q2, tau1, tau2) -> bool``. A copy of
+        started detector) and ``step(*sample) -> bool`` (``step(q1, q2, tau1,
+        tau2)`` for the default catheter, as
+        :class:`~skcath.online.ShaftChangeDetector`). A copy of
         it, ``detector_``, is started by :meth:`start` with the same sweep
         and stepped by :meth:`step` with the same (accepted) sample; its last
         answer is ``shaft_changed_``. The object passed is never changed.
@@ -277,12 +296,16 @@ class OnlineEstimator(BaseEstimator):
     ----------
     run_ : str
         Run id of the sweep given to :meth:`start`.
-    backbone_params_ : PCCParams or PDLParams
+    channels_ : tuple of str
+        The channels :meth:`step` takes, in order: the motor angles ``q1 ..
+        qN`` of the sweep's recordings, then their torques ``tau1 .. tauN``
+        if they have them.
+    backbone_params_ : PCCParams, PDLParams or PolynomialParams
         The backbone's calibration on the sweep.
     play_width_ : float
         Half-width of the play in front of the backbone (deg), identified
         on the sweep by a backbone with ``hysteresis="play"``; 0 otherwise.
-    play_state_ : ndarray of shape (2,)
+    play_state_ : ndarray of shape (n_motors,)
         Played motor angles of the last step (deg), which the backbone
         reads: right after :meth:`start` or :meth:`reset`, those of the last
         sweep sample (:func:`~skcath.backbones.play_operator` on the sweep).
@@ -292,9 +315,10 @@ class OnlineEstimator(BaseEstimator):
         ``R_SB`` of the sweep (residual learners with ``frame="sweep"``), else None.
     context_ : ndarray of shape (context_size,) or None
         The sweep context ``z``, or None (no residual or no context).
-    q_neutral_ : ndarray of shape (2,)
+    q_neutral_ : ndarray of shape (n_motors,)
         Neutral motor angles of the sweep (deg), as found by the backbone's
-        calibration.
+        calibration; for a polynomial backbone the centre of the motor angles
+        it was fitted on.
     q_amplitude_ : float
         Sweep amplitude: the largest distance of a sweep sample's motor
         angles from ``q_neutral_`` (deg).
@@ -345,6 +369,8 @@ class OnlineEstimator(BaseEstimator):
     --------
     >>> est = OnlineEstimator(pipe).start(X_run[X_run["phase"] == "sweep"])  # doctest: +SKIP
     >>> tip = est.step(q1, q2, tau1, tau2)  # (3,) mm  # doctest: +SKIP
+    >>> est.channels_  # doctest: +SKIP
+    ('q1', 'q2', 'tau1', 'tau2')
     """
 
     _parameter_constraints: dict = {
@@ -390,27 +416,33 @@ class OnlineEstimator(BaseEstimator):
         backbone, residual = check_online_pipeline(self.pipeline)
         self._fingerprint = fitted_fingerprint(backbone, residual)
         X, run = _check_sweep(sweep)
+        motors, torques = motor_columns(X)
+        if residual is not None:  # its checks of the motors and torques, before any work
+            residual._check_torques(X)
+            residual._check_motor_count(X)
         calibration = backbone.calibrate(X)
-        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-        tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
+        q = X[list(motors)].to_numpy(dtype=np.float64)
+        tau = X[list(torques)].to_numpy(dtype=np.float64)
         self.run_ = run
+        self.channels_ = (*motors, *torques)
         self.backbone_params_ = calibration.params[run]
         self.play_width_ = float(calibration.play_widths[run])
-        self._play_start = tuple(float(v) for v in play_operator(q, self.play_width_)[-1])
+        played = play_operator(q, self.play_width_) if self.play_width_ > 0 else q
+        self._play_start = tuple(float(v) for v in played[-1])
         self.rotation_ = None
         self.context_ = None
         if residual is not None:
             if residual.frame == "sweep":
-                self.rotation_ = sweep_frame(q, calibration.nominal, run=run)
+                self.rotation_ = sweep_frame(q, calibration.nominal, run=run, n_motors=len(motors))
             if residual.use_context:
                 self.context_ = residual.encode_context(X, dtype=self.dtype)[0]
         self.q_neutral_ = _neutral_angles(self.backbone_params_)
-        self.q_amplitude_ = float(np.hypot(*(q - self.q_neutral_).T).max())
+        self.q_amplitude_ = float(np.hypot.reduce(q - self.q_neutral_, axis=1).max())
         self.q_limit_ = (
             math.inf if self.q_margin is None else (1.0 + self.q_margin) * self.q_amplitude_
         )
-        self._last_sweep = (float(q[-1, 0]), float(q[-1, 1]), float(tau[-1, 0]), float(tau[-1, 1]))
-        self._qn = (float(self.q_neutral_[0]), float(self.q_neutral_[1]))
+        self._last_sweep = (*(float(v) for v in q[-1]), *(float(v) for v in tau[-1]))
+        self._qn = tuple(float(v) for v in self.q_neutral_)
         self._limit2 = self.q_limit_ * self.q_limit_
         self._step_inputs = _step_inputs(residual, self.rotation_, self.context_)
         self._pack(step_class)
@@ -433,8 +465,9 @@ class OnlineEstimator(BaseEstimator):
         weights, clip, use_torque = self._step_inputs
         # without a play (also when pickled before the play existed) the angles pass as they are
         backbone = BackboneStep(self.backbone_params_, getattr(self, "play_width_", 0.0),
-                                getattr(self, "_play_start", (0.0, 0.0)))
-        self._packed = step_class(backbone, weights, clip, use_torque, self.dtype)
+                                getattr(self, "_play_start", None))
+        n_channels = self._n_channels = len(self._channels())
+        self._packed = step_class(backbone, weights, clip, use_torque, self.dtype, n_channels)
         self._call = self._packed.call
         self._last = self._packed.last  # updated by every step
         self.nominal_ = self._packed.nominal
@@ -516,10 +549,25 @@ class OnlineEstimator(BaseEstimator):
                 "parameters set since start(). Call start(sweep) with a tracked sweep."
             )
         backbone, residual = check_online_pipeline(self.pipeline)
-        X, run = _check_sweep(sweep, columns=MOTOR_SWEEP_COLUMNS)
+        channels = self._channels()
+        motors = [c for c in channels if c.startswith("q")]
+        if len(motors) != 2:
+            raise ValueError(
+                f"resweep finds the rays of a two-motor sweep; this estimator was started on "
+                f"{len(motors)} motor(s) ({', '.join(motors)}). Call start(sweep) with a tracked "
+                "sweep instead."
+            )
+        X, run = _check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels))
+        found = motor_columns(X)
+        if (*found[0], *found[1]) != channels:
+            raise ValueError(
+                f"the re-sweep has the channels {', '.join((*found[0], *found[1]))}, but the "
+                f"sweep given to start() had {', '.join(channels)}; resweep needs the same "
+                "motor and torque columns."
+            )
         X = _without_reference(X)
-        q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-        tau = X[list(fmt.TORQUE_COLUMNS)].to_numpy(dtype=np.float64)
+        q = X[motors].to_numpy(dtype=np.float64)
+        tau = X[[c for c in channels if c not in motors]].to_numpy(dtype=np.float64)
         rays = find_rays(
             q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
             run=run,
@@ -546,6 +594,10 @@ class OnlineEstimator(BaseEstimator):
         if detector is not None:
             self.detector_, self.shaft_changed_ = detector, False
         return self.reset()
+
+    def _channels(self):
+        """``channels_``; two motors with torques for an estimator pickled before it existed."""
+        return getattr(self, "channels_", (*fmt.MOTOR_COLUMNS, *fmt.TORQUE_COLUMNS))
 
     # ------------------------------------------------------------ pickling
     # The packed arrays are viewed by the estimator (the hidden state, the
@@ -640,48 +692,62 @@ class OnlineEstimator(BaseEstimator):
     _started = False
 
     def _accept(self, sample):
-        """The sample to step with after the bad-input policy (a list of 4 floats)."""
-        bad = [name for name, v in zip(CHANNELS, sample) if not math.isfinite(v)]
+        """The sample to step with after the bad-input policy (a tuple of floats)."""
+        channels = self._channels()
+        n = len(self._qn)
+        bad = [name for name, v in zip(channels, sample) if not math.isfinite(v)]
         if not bad:
-            distance = math.hypot(sample[0] - self._qn[0], sample[1] - self._qn[1])
+            distance = math.sqrt(self._distance2(sample))
             if distance * distance <= self._limit2:
                 return sample
         if self.on_invalid == "raise":
             if bad:
+                values = ", ".join(
+                    f"{name}={v!r}{' deg' if k < n else ''}"
+                    for k, (name, v) in enumerate(zip(channels, sample))
+                )
                 raise ValueError(
-                    f"step got a non-finite value for {', '.join(bad)} "
-                    f"(q1={sample[0]!r} deg, q2={sample[1]!r} deg, tau1={sample[2]!r}, "
-                    f"tau2={sample[3]!r}); pass finite samples or use on_invalid='hold'."
+                    f"step got a non-finite value for {', '.join(bad)} ({values}); pass "
+                    "finite samples or use on_invalid='hold'."
                 )
             raise ValueError(
-                f"step got motor angles out of range: (q1, q2) = ({sample[0]!r}, "
-                f"{sample[1]!r}) deg lies {distance:.1f} deg from the neutral angles "
-                f"({self._qn[0]:.2f}, {self._qn[1]:.2f}) deg of the sweep; at most "
-                f"{self.q_limit_:.1f} deg (1 + q_margin times the sweep amplitude) is "
-                "accepted. Increase q_margin or use on_invalid='hold'."
+                f"step got motor angles out of range: ({', '.join(channels[:n])}) = "
+                f"({', '.join(repr(v) for v in sample[:n])}) deg lies {distance:.1f} deg from "
+                f"the neutral angles ({', '.join(f'{v:.2f}' for v in self._qn)}) deg of the "
+                f"sweep; at most {self.q_limit_:.1f} deg (1 + q_margin times the sweep "
+                "amplitude) is accepted. Increase q_margin or use on_invalid='hold'."
             )
         held = list(sample)
-        for k, name in enumerate(CHANNELS):
+        for k, name in enumerate(channels):
             if name in bad:
                 held[k] = float(self._last[k])
-        d1, d2 = held[0] - self._qn[0], held[1] - self._qn[1]
-        if not d1 * d1 + d2 * d2 <= self._limit2:
-            held[0], held[1] = float(self._last[0]), float(self._last[1])
+        if not self._distance2(held) <= self._limit2:
+            held[:n] = [float(v) for v in self._last[:n]]
         self.n_held_ += 1
-        return held
+        return tuple(held)
 
-    def step(self, q1, q2, tau1, tau2, *, out=None):
+    def _distance2(self, sample):
+        """Squared distance of the sample's motor angles from the neutral angles (deg^2)."""
+        total = 0.0
+        for v, neutral in zip(sample, self._qn):
+            d = v - neutral
+            total += d * d
+        return total
+
+    def step(self, *sample, out=None):
         """Tip position for one motor sample.
 
         Parameters
         ----------
-        q1, q2 : float
-            Motor angles (deg).
-        tau1, tau2 : float
-            Drive torques (N mm in the simulator; the units of the training data).
-            Each channel must be a real number (``int``, ``float``, a numpy
-            integer or floating scalar); ``bool``, strings, bytes,
-            ``Decimal`` and complex numbers raise ``TypeError``, as in
+        *sample : float
+            The channels of the recordings, in the order of ``channels_``:
+            the motor angles ``q1 .. qN`` (deg), then the drive torques
+            ``tau1 .. tauN`` (N mm in the simulator; the units of the
+            training data) when the recordings have them. For the default
+            catheter ``step(q1, q2, tau1, tau2)``. Each channel must be a
+            real number (``int``, ``float``, a numpy integer or floating
+            scalar); ``bool``, strings, bytes, ``Decimal`` and complex
+            numbers raise ``TypeError``, as in
             :meth:`ShaftChangeDetector.step`.
         out : ndarray of shape (3,), dtype float64, optional
             Written in place and returned; without it a new array is
@@ -695,14 +761,16 @@ class OnlineEstimator(BaseEstimator):
         if not self._started:
             self._check_started()
         # floats pass as they are; anything else is checked to be a real number
-        if not (type(q1) is float and type(q2) is float
-                and type(tau1) is float and type(tau2) is float):
-            q1, q2, tau1, tau2 = real_sample(q1, q2, tau1, tau2)
-        d1, d2 = q1 - self._qn[0], q2 - self._qn[1]
-        # NaN or inf in any channel makes the sum NaN, which fails the test
-        if not (d1 - d1 + d2 - d2 + tau1 - tau1 + tau2 - tau2 == 0.0
-                and d1 * d1 + d2 * d2 <= self._limit2):
-            q1, q2, tau1, tau2 = self._accept([q1, q2, tau1, tau2])
+        for v in sample:
+            if type(v) is not float:
+                sample = real_sample(sample, self._channels())
+                break
+        if len(sample) != self._n_channels:
+            sample = real_sample(sample, self._channels())  # raises: a wrong count
+        total = sum(sample)
+        # NaN or inf in any channel makes the sum NaN or inf, which fails the test
+        if not (total - total == 0.0 and self._distance2(sample) <= self._limit2):
+            sample = self._accept(sample)
         if out is None:
             out = np.empty(3)
         elif not (type(out) is np.ndarray and out.shape == (3,) and out.dtype == np.float64
@@ -712,8 +780,8 @@ class OnlineEstimator(BaseEstimator):
                 f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
             )
         function, meta, f, theta, w, w32, buf = self._call
-        function(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2)
+        function(meta, f, theta, w, w32, buf, out, sample)
         self.n_steps_ += 1
         if self.detector is not None:
-            self.shaft_changed_ = bool(self.detector_.step(q1, q2, tau1, tau2))
+            self.shaft_changed_ = bool(self.detector_.step(*sample))
         return out

@@ -106,7 +106,8 @@ def export_io(pipeline):
     -------
     inputs : dict
         Name -> shape, in the order the graph takes them: ``features``
-        ``(1, n_features)``; ``rotation`` ``(3, 3)`` (``frame="sweep"``
+        ``(1, n_features)`` (``3N + 3`` for ``N`` motors, ``2N + 3`` without
+        torques); ``rotation`` ``(3, 3)`` (``frame="sweep"``
         only); ``context`` ``(1, context_size)`` (``use_context=True`` only);
         ``hidden`` ``(num_layers, 1, hidden_size)`` (GRU only).
     outputs : dict
@@ -142,7 +143,8 @@ def export(pipeline, path, format="onnx", *, dtype="float32"):
 
     ``(features, [rotation], [context], [hidden]) -> (residual, [hidden_out])``
 
-    ``features`` are ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]``
+    ``features`` are ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]``, for
+    ``N`` motors ``[q1 .. qN, dq1 .. dqN, tau1 .. tauN, b_x, b_y, b_z]``
     (without the torques if the learner has ``use_torque=False``): motor
     angles (deg), their differences to the previous sample (deg; for the
     first motion sample, to the last sweep sample), drive torques and the

@@ -47,16 +47,19 @@ class JitStep(PackedStep):
 
     def _bind(self):
         arrays = (self.meta, self.f, self.theta, self.w, self.w32, self.buf)
-        self.compile_seconds = _compile(*arrays)
+        self.compile_seconds = _compile(arrays, self.last.size)
         return (step_kernel, *arrays)
 
 
-def _compile(*arrays):
+def _compile(arrays, n_channels):
     """Compile (or load from numba's cache) the kernel for these arrays; seconds taken.
 
-    Done when the run starts, so that the first step does not pay for it.
+    The sample is a tuple of ``n_channels`` floats: one compiled step per
+    number of channels. Done when the run starts, so that the first step
+    does not pay for it.
     """
     t0 = time.perf_counter()
-    sig = tuple(numba.typeof(a) for a in (*arrays, np.empty(3))) + (numba.float64,) * 4
+    sample = numba.types.UniTuple(numba.float64, n_channels)
+    sig = (*(numba.typeof(a) for a in (*arrays, np.empty(3))), sample)
     step_kernel.compile(sig)
     return time.perf_counter() - t0

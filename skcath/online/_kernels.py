@@ -3,10 +3,11 @@
 :func:`step` does a whole step of :meth:`~skcath.online.OnlineEstimator.step`
 after the input checks: the play in front of the backbone
 (:func:`~skcath.backbones.play_kernel`, for a backbone with
-``hysteresis="play"``), the backbone's nominal tip for the played ``(q1,
-q2)`` (its tip kernel, :func:`~skcath.backbones.pcc_kernel` or
-:func:`~skcath.backbones.pdl_kernel`), the step features
-``[q1, q2, dq1, dq2, (tau1, tau2,) b_x, b_y, b_z]``, the residual network (GRU
+``hysteresis="play"``), the backbone's nominal tip for the played motor
+angles (its tip kernel, :func:`~skcath.backbones.pcc_kernel`,
+:func:`~skcath.backbones.pdl_kernel` or
+:func:`~skcath.backbones.polynomial_kernel`), the step features
+``[q1 .. qN, dq1 .. dqN, (tau1 .. tauN,) b_x, b_y, b_z]``, the residual network (GRU
 layers then the tanh head, or the MLP), the clip and the addition of the
 nominal tip. It reads the run's packed arrays by the names of
 :mod:`skcath.online._layout`.
@@ -30,16 +31,22 @@ import numpy as np
 from scipy.special import expit
 
 from .._kernel import compiled_as, kernel
-from ..backbones import PCCParams, PDLParams, pcc_kernel, pdl_kernel, play_kernel
+from ..backbones import (
+    PCCParams,
+    PDLParams,
+    PolynomialParams,
+    pcc_kernel,
+    pdl_kernel,
+    play_kernel,
+    polynomial_kernel,
+)
 from ._layout import (
     BACKBONE_PCC,
     BACKBONE_PDL,
+    BACKBONE_POLYNOMIAL,
     F_CLIP,
-    F_LAST,
     F_NOMINAL,
-    F_PLAY,
     F_PLAY_WIDTH,
-    F_SCRATCH,
     GRU_CAND,
     GRU_GATES,
     GRU_N_IN,
@@ -50,16 +57,22 @@ from ._layout import (
     HEAD_RECORD,
     HEAD_SRC,
     HEAD_TANH,
+    M_ANGLES,
     M_BACKBONE,
     M_CAND,
     M_GATES,
     M_HEADER,
     M_HIDDEN,
+    M_LAST,
+    M_N_CHANNELS,
     M_N_GRU,
     M_N_HEAD,
+    M_N_MOTORS,
     M_N_SCRATCH,
+    M_PLAY,
     M_RESIDUAL,
     M_RESULT,
+    M_SCRATCH,
     M_TMP,
     M_USE_TORQUE,
     M_X,
@@ -164,8 +177,8 @@ def _tanh(y, bits):
 
 
 def _scratch_compiled(meta, f):
-    n = meta[M_N_SCRATCH]
-    return f[F_SCRATCH : F_SCRATCH + n], f[F_SCRATCH + n : F_SCRATCH + 2 * n].view(np.int64)
+    n, at = meta[M_N_SCRATCH], meta[M_SCRATCH]
+    return f[at : at + n], f[at + n : at + 2 * n].view(np.int64)
 
 
 def _matvec_compiled(meta, r, w, w32, x, y):
@@ -352,7 +365,19 @@ def _head(meta, f, w, w32, buf):
             tanh_inplace(y, t, bits)
 
 
-def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
+@kernel
+def _nominal_tip(meta, f, theta):
+    """The backbone's tip ``(x, y, z)`` (mm) for the motor angles at ``f[meta[M_ANGLES]:]``."""
+    at = meta[M_ANGLES]
+    kind = meta[M_BACKBONE]
+    if kind == BACKBONE_PCC:
+        return pcc_kernel(theta, float(f[at]), float(f[at + 1]))
+    if kind == BACKBONE_PDL:
+        return pdl_kernel(theta, float(f[at]), float(f[at + 1]))
+    return polynomial_kernel(theta, f[at : at + meta[M_N_MOTORS]])
+
+
+def step(meta, f, theta, w, w32, buf, out, sample):
     """One whole step: the tip (mm, base frame) for an accepted sample, into ``out``.
 
     Parameters
@@ -361,51 +386,50 @@ def step(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2):
         The packed arrays of the run (:class:`~skcath.online._layout.PackedStep`).
     out : ndarray of shape (3,), float64
         Receives the tip (mm).
-    q1, q2 : float
-        Motor angles (deg), finite and in range. The backbone reads them
-        played (a half-width of 0 leaves them as they are, and the play is
-        skipped); the step features read them as they are.
-    tau1, tau2 : float
-        Drive torques, finite.
+    sample : tuple of float
+        The motor angles ``q1 .. qN`` (deg), finite and in range, then the
+        drive torques ``tau1 .. tauN`` (finite) when the recordings have
+        them. The backbone reads the angles played (a half-width of 0
+        leaves them as they are, and the play is skipped); the step features
+        read them as they are.
     """
-    p1, p2 = q1, q2
+    n = meta[M_N_MOTORS]
+    last = meta[M_LAST]
+    angles = meta[M_ANGLES]
     width = f[F_PLAY_WIDTH]
     if width > 0.0:
-        p1 = play_kernel(f[F_PLAY], q1, width)
-        p2 = play_kernel(f[F_PLAY + 1], q2, width)
-        f[F_PLAY] = p1
-        f[F_PLAY + 1] = p2
-    if meta[M_BACKBONE] == BACKBONE_PCC:
-        bx, by, bz = pcc_kernel(theta, p1, p2)
+        played = meta[M_PLAY]
+        for j in range(n):
+            f[played + j] = play_kernel(f[played + j], sample[j], width)
+            f[angles + j] = f[played + j]
     else:
-        bx, by, bz = pdl_kernel(theta, p1, p2)
+        for j in range(n):
+            f[angles + j] = sample[j]
+    bx, by, bz = _nominal_tip(meta, f, theta)
     f[F_NOMINAL] = bx
     f[F_NOMINAL + 1] = by
     f[F_NOMINAL + 2] = bz
-    dq1 = q1 - f[F_LAST]
-    dq2 = q2 - f[F_LAST + 1]
-    f[F_LAST] = q1
-    f[F_LAST + 1] = q2
-    f[F_LAST + 2] = tau1
-    f[F_LAST + 3] = tau2
     kind = meta[M_RESIDUAL]
+    if kind != RESIDUAL_NONE:
+        x = meta[M_X]
+        for j in range(n):
+            buf[x + j] = sample[j]
+            buf[x + n + j] = sample[j] - f[last + j]
+        x += 2 * n
+        if meta[M_USE_TORQUE]:
+            for j in range(n):
+                buf[x + j] = sample[n + j]
+            x += n
+        buf[x] = bx
+        buf[x + 1] = by
+        buf[x + 2] = bz
+    for k in range(meta[M_N_CHANNELS]):
+        f[last + k] = sample[k]
     if kind == RESIDUAL_NONE:
         out[0] = bx
         out[1] = by
         out[2] = bz
         return
-    x = meta[M_X]
-    buf[x] = q1
-    buf[x + 1] = q2
-    buf[x + 2] = dq1
-    buf[x + 3] = dq2
-    if meta[M_USE_TORQUE]:
-        buf[x + 4] = tau1
-        buf[x + 5] = tau2
-        x += 2
-    buf[x + 4] = bx
-    buf[x + 5] = by
-    buf[x + 6] = bz
     if kind == RESIDUAL_GRU:
         _gru(meta, f, w, w32, buf)
     _head(meta, f, w, w32, buf)
@@ -421,38 +445,48 @@ class BackboneStep:
 
     Parameters
     ----------
-    params : PCCParams or PDLParams
+    params : PCCParams, PDLParams or PolynomialParams
         Calibrated parameters of the run.
     play_width : float, default=0.0
         Half-width of the play in front of the backbone (deg); 0 without
         hysteresis.
-    play_start : tuple of 2 float, default=(0.0, 0.0)
-        Played motor angles of the last sweep sample (deg), where the play
-        starts the motion; unused with a half-width of 0.
+    play_start : tuple of float, default=None
+        Played motor angles of the last sweep sample (deg), one per motor,
+        where the play starts the motion; unused with a half-width of 0.
+        None means zeros.
 
     Attributes
     ----------
     code : int
         ``meta[M_BACKBONE]`` of this backbone.
+    n_motors : int
+        Number of motors the backbone reads: 2 for PCC and PDL.
     theta : ndarray
         The packed parameters (``params.pack()``).
     play_width, play_start
         As given.
     """
 
-    def __init__(self, params, play_width=0.0, play_start=(0.0, 0.0)):
-        self.play_width = float(play_width)
-        self.play_start = (float(play_start[0]), float(play_start[1]))
+    def __init__(self, params, play_width=0.0, play_start=None):
         if isinstance(params, PCCParams):
-            self.code, self._kernel = BACKBONE_PCC, pcc_kernel
+            self.code, self._kernel, self.n_motors = BACKBONE_PCC, pcc_kernel, 2
         elif isinstance(params, PDLParams):
-            self.code, self._kernel = BACKBONE_PDL, pdl_kernel
+            self.code, self._kernel, self.n_motors = BACKBONE_PDL, pdl_kernel, 2
+        elif isinstance(params, PolynomialParams):
+            self.code, self._kernel = BACKBONE_POLYNOMIAL, None
+            self.n_motors = params.n_motors
         else:
             raise TypeError(f"Unsupported backbone parameters {type(params).__name__}.")
+        self.play_width = float(play_width)
+        if play_start is None:
+            play_start = (0.0,) * self.n_motors
+        self.play_start = tuple(float(v) for v in play_start)
         self.params = params
         self.theta = params.pack()
         self._theta = self.theta.tolist()
 
-    def __call__(self, q1, q2):
+    def __call__(self, *q):
         """Tip ``(x, y, z)`` in the base frame (mm) for the motor angles (deg), as Python."""
-        return self._kernel(self._theta, q1, q2)
+        if self._kernel is None:
+            return polynomial_kernel(self._theta, q)
+        return self._kernel(self._theta, *q)

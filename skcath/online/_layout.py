@@ -6,20 +6,26 @@ from six arrays made once by :class:`PackedStep` when the run starts:
 * ``meta`` (int64): the header ``M_*`` (kinds, sizes, offsets into ``buf``),
   then one record per GRU layer (``GRU_*``) and one per layer of the head
   (``HEAD_*``), each holding matrix records (``MAT_*``);
-* ``f`` (float64): the nominal tip of the last step, the last accepted
-  sample ``(q1, q2, tau1, tau2)``, the clip, the state and the half-width of
-  the play operator in front of the backbone (0 without hysteresis), then
-  float64 scratch for the compiled nonlinearities (``F_*``);
+* ``f`` (float64): the nominal tip of the last step, the clip and the
+  half-width of the play operator in front of the backbone (0 without
+  hysteresis) (``F_*``); then, sized by the number of motors ``N`` at the
+  offsets ``meta[M_LAST]``, ``meta[M_PLAY]``, ``meta[M_ANGLES]``: the last
+  accepted sample ``(q1 .. qN, tau1 .. tauN)`` (``N`` values without
+  torques), the state of the play (``N``) and the motor angles the backbone
+  reads (``N``); then float64 scratch for the compiled nonlinearities at
+  ``meta[M_SCRATCH]``;
 * ``theta`` (float64): the backbone's packed parameters
   (:meth:`~skcath.backbones.PCCParams.pack`,
-  :meth:`~skcath.backbones.PDLParams.pack`);
+  :meth:`~skcath.backbones.PDLParams.pack`,
+  :meth:`~skcath.backbones.PolynomialParams.pack`);
 * ``w`` and ``w32``: the weight matrices (see :class:`FlatStore` and
   :class:`MatrixStore`);
 * ``buf`` (the network's dtype): the per-layer vectors ``[x; 1; h]`` that
   hold the GRU's hidden states, the gates, the head's vectors ``[1; a]``,
   the residual (3,) and a scratch vector.
 
-Every offset the step reads is named here, once.
+Every offset the step reads is named here, once; every size that depends on
+the number of motors is set here, by :class:`PackedStep`.
 """
 
 from __future__ import annotations
@@ -31,16 +37,19 @@ from .._kernel import offsets
 __all__ = ["FlatStore", "MatrixStore", "PackedStep"]
 
 # kinds of backbone and residual (meta[M_BACKBONE], meta[M_RESIDUAL])
-BACKBONE_PCC, BACKBONE_PDL = 0, 1
+BACKBONE_PCC, BACKBONE_PDL, BACKBONE_POLYNOMIAL = 0, 1, 2
 RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
 
 # meta header: the kinds, whether the features hold the torques, the offset in
 # buf of the raw step features, GRU layers and hidden size H, the offsets in
 # buf of the gates' pre-activations (3H), of W_in x + b_in (H) and of a scratch
 # vector (H), head layers, the offset in buf of the residual (3), the length n
-# of the float64 scratch of f (then n int64 of scratch)
+# of the float64 scratch of f (then n int64 of scratch); the number of motors
+# N, the channels of a sample (N, or 2N with torques), the offsets in f of the
+# last sample, of the play's state, of the backbone's angles and of the scratch
 (M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
- M_N_HEAD, M_RESULT, M_N_SCRATCH, M_HEADER) = offsets(1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1)
+ M_N_HEAD, M_RESULT, M_N_SCRATCH, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
+ M_SCRATCH, M_HEADER) = offsets(1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1)
 
 # matrix record: rows, columns, columns of the first block, then for each of
 # the two column blocks whether it is stored in w32 and its offset (FlatStore)
@@ -57,9 +66,9 @@ GRU_N_IN, GRU_VECTOR, GRU_GATES, GRU_CAND, GRU_RECORD = offsets(1, 1, MAT_RECORD
 # tanh follows, the matrix [b, W]
 HEAD_SRC, HEAD_DST, HEAD_TANH, HEAD_MATRIX, HEAD_RECORD = offsets(1, 1, 1, MAT_RECORD)
 
-# f: nominal tip of the last step (3), last accepted sample (4), clip (1), played
-# motor angles of the last step (2, deg), half-width of the play (1, deg), scratch
-F_NOMINAL, F_LAST, F_CLIP, F_PLAY, F_PLAY_WIDTH, F_SCRATCH = offsets(3, 4, 1, 2, 1)
+# f: nominal tip of the last step (3), clip (1), half-width of the play (1, deg);
+# the regions sized by the motors follow from F_MOTORS (offsets in meta)
+F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_MOTORS = offsets(3, 1, 1)
 
 
 class _Arena:
@@ -163,8 +172,9 @@ class PackedStep:
     Parameters
     ----------
     backbone : BackboneStep
-        The backbone of the run: its kind, its packed calibration and its
-        play (half-width and the played angles of the last sweep sample).
+        The backbone of the run: its kind, its packed calibration, its
+        number of motors ``N`` and its play (half-width and the played
+        angles of the last sweep sample).
     weights : StepWeights or None
         The residual's folded weights (:func:`~skcath.online._weights.step_weights`),
         or None for the backbone alone.
@@ -174,6 +184,9 @@ class PackedStep:
         Whether the step features hold the torques.
     dtype : numpy dtype, default="float64"
         Arithmetic precision of the network.
+    n_channels : int, default=None
+        Channels of a sample: ``N`` motor angles, then ``N`` torques when the
+        recordings have them; None means ``2N``.
 
     Attributes
     ----------
@@ -181,20 +194,21 @@ class PackedStep:
         As described in the module's docstring.
     call : tuple
         ``(function, meta, f, theta, w, w32, buf)`` in the engine's form: the
-        step is ``function(meta, f, theta, w, w32, buf, out, q1, q2, tau1, tau2)``.
+        step is ``function(meta, f, theta, w, w32, buf, out, sample)``, with
+        ``sample`` a tuple of ``n_channels`` floats.
     hidden : list of ndarray
         The GRU layers' hidden states (views of ``buf``).
     nominal : ndarray of shape (3,)
         Nominal tip of the last step (mm); a view of ``f``.
-    last : ndarray of shape (4,)
-        Last accepted sample ``(q1, q2, tau1, tau2)``; a view of ``f``.
-    play : ndarray of shape (2,)
+    last : ndarray of shape (n_channels,)
+        Last accepted sample ``(q1 .. qN, tau1 .. tauN)``; a view of ``f``.
+    play : ndarray of shape (N,)
         Played motor angles of the last step (deg); a view of ``f``.
     compile_seconds : float
         Time taken to compile the step (s).
     """
 
-    def __init__(self, backbone, weights, clip, use_torque, dtype="float64"):
+    def __init__(self, backbone, weights, clip, use_torque, dtype="float64", n_channels=None):
         self.dtype = np.dtype(np.float64 if weights is None else dtype)
         store = self.store(self.dtype)
         vectors = _Arena(self.dtype)
@@ -202,6 +216,11 @@ class PackedStep:
         header[M_BACKBONE] = backbone.code
         header[M_RESIDUAL] = RESIDUAL_NONE
         header[M_USE_TORQUE] = bool(use_torque)
+        n_motors = backbone.n_motors
+        n_channels = 2 * n_motors if n_channels is None else int(n_channels)
+        header[M_N_MOTORS], header[M_N_CHANNELS] = n_motors, n_channels
+        header[[M_LAST, M_PLAY, M_ANGLES, M_SCRATCH]] = np.add(
+            F_MOTORS, offsets(n_channels, n_motors, n_motors))
         gru, head, hidden, n_scratch = [], [], [], 1
         if weights is not None:
             gru, src, hidden = self._pack_gru(weights.gru, header, vectors, store)
@@ -215,7 +234,7 @@ class PackedStep:
             n_scratch = max(3 * int(header[M_HIDDEN]), *(W.shape[0] for W, _ in weights.head))
         header[M_N_SCRATCH] = n_scratch
         self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
-        self.f = np.zeros(F_SCRATCH + 2 * n_scratch)
+        self.f = np.zeros(header[M_SCRATCH] + 2 * n_scratch)
         self.f[F_CLIP] = clip
         self.f[F_PLAY_WIDTH] = backbone.play_width
         self._play_start = backbone.play_start
@@ -224,8 +243,8 @@ class PackedStep:
         self.buf = vectors.array()
         self.hidden = [self.buf[at : at + n] for at, n in hidden]
         self.nominal = self.f[F_NOMINAL : F_NOMINAL + 3]
-        self.last = self.f[F_LAST : F_LAST + 4]
-        self.play = self.f[F_PLAY : F_PLAY + 2]
+        self.last = self.f[header[M_LAST] : header[M_LAST] + n_channels]
+        self.play = self.f[header[M_PLAY] : header[M_PLAY] + n_motors]
         self.play[:] = self._play_start
         self.call = self._bind()
 
@@ -267,15 +286,16 @@ class PackedStep:
                 records += [src, header[M_RESULT], 0, *self._matrix(M, cols, store)]
         return records
 
-    def __call__(self, q1, q2, tau1, tau2, out):
-        """Step with an accepted sample; the tip (mm) is written into ``out``.
+    def __call__(self, *sample_and_out):
+        """Step with an accepted sample, ``step(*sample, out)``; the tip (mm) is written into ``out``.
 
         ``call`` is ``(function, meta, f, theta, w, w32, buf)``, set by the
-        engine: the step is ``function(meta, f, theta, w, w32, buf, out, q1,
-        q2, tau1, tau2)``.
+        engine: the step is ``function(meta, f, theta, w, w32, buf, out,
+        sample)``, ``sample`` the tuple of the sample's floats.
         """
         function, *arrays = self.call
-        function(*arrays, out, q1, q2, tau1, tau2)
+        *sample, out = sample_and_out
+        function(*arrays, out, tuple(sample))
 
     def reset(self, last_sample):
         """Zero hidden state; ``last_sample`` becomes the previous sample.

@@ -5,8 +5,8 @@ weights: the feature normalisation ``(x - mean) / scale``, the rotation of
 the nominal tip into the sweep frame (``frame="sweep"``) and the context
 contribution ``W_z z`` (which becomes part of the bias). The output layer
 likewise absorbs ``sigma_e`` and the rotation back to the base frame, so the
-folded network reads the raw features ``[q1, q2, dq1, dq2, (tau1, tau2,) b_x,
-b_y, b_z]`` and returns the residual in the base frame (mm) before clipping.
+folded network reads the raw features ``[q1 .. qN, dq1 .. dqN, (tau1 ..
+tauN,) b_x, b_y, b_z]`` and returns the residual in the base frame (mm) before clipping.
 Both streaming engines pack these weights (:mod:`skcath.online._layout`).
 """
 

@@ -34,7 +34,7 @@ from skorch.utils import is_dataset, to_tensor
 from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._runs import group_positions
-from .._validation import check_recordings
+from .._validation import check_recordings, motor_columns
 from ..backbones import BACKBONE_COLUMNS
 from ..frames import FRAMES, sweep_frame
 from ..sequences import from_padded, to_padded
@@ -299,8 +299,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
     def initialize_module(self):
         kwargs = self.get_params_for("module")
         kwargs.update(
-            n_features=len(step_feature_names(self.use_torque)),
-            n_sweep_features=len(sweep_feature_names(self.use_torque)),
+            n_features=len(step_feature_names(self.use_torque, self._n_motors())),
+            n_sweep_features=len(sweep_feature_names(self.use_torque, self._n_motors())),
             use_context=self.use_context,
         )
         self.module_ = self.initialized_instance(self.module, kwargs)
@@ -371,7 +371,35 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
     def _check_X(self, X, y=None):
         X, y = check_recordings(X, y)
         check_backbone_columns(X, type(self).__name__)
+        self._check_torques(X)
         return X, y
+
+    def _n_motors(self):
+        """Motors of the network's input: ``n_motors_`` (two before any fit)."""
+        return getattr(self, "n_motors_", 2)
+
+    def _check_torques(self, X):
+        """Raise if ``use_torque`` is True and the recordings have no torque column."""
+        motors, torques = motor_columns(X)
+        if self.use_torque and not torques:
+            expected = list(fmt.torque_names(len(motors)))
+            raise ValueError(
+                f"{type(self).__name__} has use_torque=True and reads the drive torques "
+                f"{expected} of the {len(motors)} motor(s), but the recordings have no "
+                "torque column. Pass use_torque=False for a rig without torque sensing, "
+                "or add the torques."
+            )
+
+    def _check_motor_count(self, X):
+        """Raise unless ``X`` has the motors of the fitted network (``n_motors_``)."""
+        motors, _ = motor_columns(X)
+        if len(motors) != self._n_motors():
+            raise ValueError(
+                f"This {type(self).__name__} was fitted on recordings of {self._n_motors()} "
+                f"motor(s) (q1 .. q{self._n_motors()}); X has {len(motors)} "
+                f"({', '.join(motors)}). Its network takes the features of "
+                f"{self._n_motors()} motor(s) only; fit it on recordings of this instrument."
+            )
 
     def _check_training_data(self, X, y, sample_weight, method):
         """The checked recordings, targets and sample weights of ``fit`` or ``partial_fit``."""
@@ -405,6 +433,11 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 "cross_validate or GridSearchCV wrap it in sklearn.frozen.FrozenEstimator, "
                 "because clone() drops the weights of a plain fitted estimator."
             )
+        if source._n_motors() != self._n_motors():
+            raise ValueError(
+                f"pretrained was fitted on recordings of {source._n_motors()} motor(s) but "
+                f"X has {self._n_motors()}; they must match."
+            )
         keys = ["use_torque", "use_context", "frame"]
         if self.use_context:  # the encoder learned sweeps shortened this way
             keys += ["sweep_stride", "sweep_pooling"]
@@ -423,14 +456,14 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         if self.frame == "base":
             return None
         is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
-        q = F[list(fmt.MOTOR_COLUMNS)].to_numpy()
+        q = F[list(fmt.motor_names(self._n_motors()))].to_numpy()
         b = F[list(BACKBONE_COLUMNS)].to_numpy()
         order, bounds = group_positions(codes[is_sweep], len(runs))
         sweep_rows = np.flatnonzero(is_sweep)[order]
         rotations = np.empty((len(runs), 3, 3))
         for k in range(len(runs)):  # check_recordings ensures every run has a sweep
             rows = sweep_rows[bounds[k] : bounds[k + 1]]
-            rotations[k] = sweep_frame(q[rows], b[rows], run=runs[k])
+            rotations[k] = sweep_frame(q[rows], b[rows], run=runs[k], n_motors=q.shape[1])
         return rotations[codes]
 
     def _sequences(self, X, y=None, dtype=np.float32):
@@ -443,8 +476,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         ``dtype`` is the precision of the padded sequences.
         """
         F, codes, runs = feature_frame(X)
-        x_names = step_feature_names(self.use_torque)
-        s_names = sweep_feature_names(self.use_torque)
+        x_names = step_feature_names(self.use_torque, self._n_motors())
+        s_names = sweep_feature_names(self.use_torque, self._n_motors())
         b = F[list(BACKBONE_COLUMNS)].to_numpy()
         rotations = self._row_rotations(F, codes, runs)
         if rotations is not None:
@@ -460,8 +493,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
 
     def _fit_statistics(self, F, e, sample_weight=None):
         """Normalisation statistics and ``sigma_e_``, weighted by ``sample_weight`` if given."""
-        x_names = list(step_feature_names(self.use_torque))
-        s_names = list(sweep_feature_names(self.use_torque))
+        x_names = list(step_feature_names(self.use_torque, self._n_motors()))
+        s_names = list(sweep_feature_names(self.use_torque, self._n_motors()))
         is_motion = (F[fmt.PHASE] == fmt.MOTION).to_numpy()
         is_sweep = (F[fmt.PHASE] == fmt.SWEEP).to_numpy()
         w = np.ones(len(F)) if sample_weight is None else sample_weight
@@ -612,7 +645,9 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         check_device(self.device, type(self).__name__)
         X, y, sample_weight = self._check_training_data(X, y, sample_weight, "fit")
         if not self.warm_start or not self.initialized_:
+            self.n_motors_ = len(motor_columns(X)[0])
             self._start_training()
+        self._check_motor_count(X)
         return self._partial_fit(X, y, sample_weight, **fit_params)
 
     @_fit_context(prefer_skip_nested_validation=True)
@@ -629,7 +664,9 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         check_device(self.device, type(self).__name__)
         X, y, sample_weight = self._check_training_data(X, y, sample_weight, "partial_fit")
         if not self.initialized_:
+            self.n_motors_ = len(motor_columns(X)[0])
             self._start_training()
+        self._check_motor_count(X)
         return self._partial_fit(X, y, sample_weight, **fit_params)
 
     def _seed(self):
@@ -671,6 +708,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             )
         check_device(self.device, type(self).__name__)
         X, _ = self._check_X(X)
+        self._check_motor_count(X)
         # the network's own precision: float32, or float64 after module_.double()
         dtype = self._module_dtype()
         F, motion, sweep, _, rotations = self._sequences(X, dtype=dtype)
@@ -723,8 +761,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 f"This {type(self).__name__} has use_context=False: it encodes no sweep context."
             )
         X, _ = check_recordings(X)
+        self._check_torques(X)
+        self._check_motor_count(X)
         dtype = self._module_dtype() if dtype is None else np.dtype(dtype)
-        names = sweep_feature_names(self.use_torque)
+        names = sweep_feature_names(self.use_torque, self._n_motors())
         sweep = to_padded(X, names, phase=fmt.SWEEP, dtype=np.float64)
         torch_dtype = torch.float64 if dtype == np.float64 else torch.float32
         encoder = on_cpu(self.module_.encoder, torch_dtype)
@@ -836,7 +876,9 @@ _COMMON_PARAMS = """
         which averages out the measurement noise of the drive torques, or
         the first of them (the earlier behaviour, kept for comparison).
     use_torque : bool, default=True
-        Include the drive torques in the step features and the sweep features.
+        Include the drive torques in the step features and the sweep
+        features. Recordings without torque columns need False; with True
+        they are refused with an error that names the missing columns.
     use_context : bool, default=True
         Condition on the sweep context ``z``; without it ``v = x``.
     frame : {"sweep", "base"}, default="sweep"
@@ -891,6 +933,10 @@ _COMMON_ATTRIBUTES = """
         of the frame the network works in (see ``frame``).
     history_ : skorch.History
         Per-epoch training (and validation) loss.
+    n_motors_ : int
+        Number of motors ``N`` of the training recordings (``q1 .. qN``):
+        the network reads ``3N + 3`` step features (``2N + 3`` without
+        torques); recordings of another number of motors are refused.
     feature_names_in_ : ndarray of str
     n_features_in_ : int"""
 
@@ -904,10 +950,12 @@ class GRUResidual(_ResidualNet):
 
     .. math::
 
-        x_t = [q_t, \\Delta q_t, \\tau_t, b_t] \\in \\mathbb{{R}}^9
+        x_t = [q_t, \\Delta q_t, \\tau_t, b_t] \\in \\mathbb{{R}}^{{3N + 3}}
 
-    (motor angles in degrees, their per-sample differences, drive torques and
-    the backbone's nominal tip in mm) are normalised with training means and
+    (the angles of the ``N`` motors in degrees, their per-sample differences,
+    the drive torques and the backbone's nominal tip in mm; ``2N + 3``
+    features with ``use_torque=False``, 9 for the default two motors) are
+    normalised with training means and
     standard deviations and, with ``z``, drive a GRU whose hidden state starts
     from zero at the first motion sample:
 

@@ -1,6 +1,7 @@
 """Input features of the residual learners (paper eqs. "features" and "context").
 
-Pure numpy functions: per-step motion features ``x = [q, dq, tau, b]``, sweep
+Pure numpy functions: per-step motion features ``x = [q, dq, tau, b]``
+(width ``3N + 3`` for ``N`` motors, ``2N + 3`` without torques), sweep
 features ``s = [q, tau]`` pooled over blocks of a fixed length, featurewise
 normalisation statistics, and the training windows cut from the motion
 sequences. Nothing here depends on torch.
@@ -15,10 +16,12 @@ import pandas as pd
 
 from .. import _format as fmt
 from .._runs import run_codes, run_differences
+from .._validation import motor_columns
 from ..backbones import BACKBONE_COLUMNS
 
 __all__ = [
     "DELTA_COLUMNS",
+    "delta_names",
     "Standardizer",
     "cut_windows",
     "feature_frame",
@@ -28,24 +31,31 @@ __all__ = [
     "weighted_mean_std",
 ]
 
-#: Names of the per-sample motor-angle differences (degrees per sample).
+#: Names of the per-sample motor-angle differences of the default two motors
+#: (degrees per sample); :func:`delta_names` gives them for ``N`` motors.
 DELTA_COLUMNS = ("dq1", "dq2")
 
 
-def step_feature_names(use_torque: bool = True) -> tuple[str, ...]:
+def delta_names(n_motors: int = 2) -> tuple[str, ...]:
+    """Names of the per-sample motor-angle differences: ``("dq1", ..., "dqN")``."""
+    return tuple(f"d{name}" for name in fmt.motor_names(n_motors))
+
+
+def step_feature_names(use_torque: bool = True, n_motors: int = 2) -> tuple[str, ...]:
     """Names of the per-step features ``x_t``, in the order the network sees them.
 
-    ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]`` (9 features), without the
-    torques when ``use_torque`` is False (7 features).
+    ``[q1 .. qN, dq1 .. dqN, tau1 .. tauN, b_x, b_y, b_z]``: ``3N + 3``
+    features, ``2N + 3`` without the torques (``use_torque`` False); for the
+    default two motors ``[q1, q2, dq1, dq2, tau1, tau2, b_x, b_y, b_z]`` (9).
     """
-    torque = fmt.TORQUE_COLUMNS if use_torque else ()
-    return (*fmt.MOTOR_COLUMNS, *DELTA_COLUMNS, *torque, *BACKBONE_COLUMNS)
+    torque = fmt.torque_names(n_motors) if use_torque else ()
+    return (*fmt.motor_names(n_motors), *delta_names(n_motors), *torque, *BACKBONE_COLUMNS)
 
 
-def sweep_feature_names(use_torque: bool = True) -> tuple[str, ...]:
-    """Names of the sweep features ``s_k``: ``[q1, q2, tau1, tau2]`` or ``[q1, q2]``."""
-    torque = fmt.TORQUE_COLUMNS if use_torque else ()
-    return (*fmt.MOTOR_COLUMNS, *torque)
+def sweep_feature_names(use_torque: bool = True, n_motors: int = 2) -> tuple[str, ...]:
+    """Names of the sweep features ``s_k``: ``[q1 .. qN, tau1 .. tauN]`` or ``[q1 .. qN]``."""
+    torque = fmt.torque_names(n_motors) if use_torque else ()
+    return (*fmt.motor_names(n_motors), *torque)
 
 
 def weighted_mean_std(values: np.ndarray, sample_weight=None):
@@ -197,7 +207,7 @@ def cut_windows(lengths: np.ndarray, window: int | None, step: int | None = None
 
 
 def feature_frame(X: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
-    """Recordings with the ``dq1``, ``dq2`` columns added, plus run codes and ids.
+    """Recordings with the ``dq1 .. dqN`` columns added, plus run codes and ids.
 
     ``X`` must be a checked long-format frame with the backbone columns. The
     motor-angle differences ``dq_t = q_t - q_{t-1}`` (degrees per sample) are
@@ -206,13 +216,14 @@ def feature_frame(X: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, np.ndarray
     true step.
     """
     codes, runs = run_codes(X)
-    q = X[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
+    motors, torques = motor_columns(X)
+    q = X[list(motors)].to_numpy(dtype=np.float64)
     dq = run_differences(q, codes, len(runs))
     keep = [*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE]
     keep = [c for c in keep if c in X.columns]
     F = X[keep].copy()
-    for name in (*fmt.MOTOR_COLUMNS, *fmt.TORQUE_COLUMNS, *BACKBONE_COLUMNS):
+    for name in (*motors, *torques, *BACKBONE_COLUMNS):
         F[name] = X[name].to_numpy(dtype=np.float64)
-    F[DELTA_COLUMNS[0]] = dq[:, 0]
-    F[DELTA_COLUMNS[1]] = dq[:, 1]
+    for j, name in enumerate(delta_names(len(motors))):
+        F[name] = dq[:, j]
     return F, codes, runs
