@@ -19,11 +19,23 @@ from ..frames import tip_in_base_frame
 from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
-from ._protocol import run_protocol
+from ._protocol import protocol_trajectory
 from ._sensors import DistortionField, measure_pose
 
-__all__ = ["RUN_VARIATION", "RunSpec", "ShaftChange", "check_run_variation", "simulate_runs", "simulate_run"]
+__all__ = [
+    "MAX_RATE_HZ",
+    "RATE_HZ",
+    "RUN_VARIATION",
+    "RunSpec",
+    "ShaftChange",
+    "check_run_variation",
+    "simulate_runs",
+    "simulate_run",
+]
 
+#: Rate of the protocol (Hz): the durations of its moves, the run lengths and
+#: the per-run draws are counted in samples at this rate, whatever the rate
+#: the runs are sampled at (``rate_hz``).
 RATE_HZ = 10.0
 
 #: Per-run variation (standard deviations): gain jitter (relative), offset
@@ -41,6 +53,9 @@ RUN_VARIATION = {
 }
 #: Keys of :data:`RUN_VARIATION` that are time constants (s), which must be positive.
 _TIME_CONSTANTS = ("offset_drift_tau_s", "gain_drift_tau_s")
+
+#: Highest sample rate the simulator accepts (Hz).
+MAX_RATE_HZ = 1000.0
 
 
 def check_run_variation(run_variation=None):
@@ -116,17 +131,24 @@ class RunSpec:
     change: ShaftChange | None = None
 
 
-def _ou(rng, n, std, tau_s, size=2):
-    """Stationary Ornstein-Uhlenbeck series of shape (n, size) sampled at RATE_HZ."""
+def _ou(rng, n, std, tau_s, t, size=2):
+    """Stationary Ornstein-Uhlenbeck series of ``n`` samples at RATE_HZ, at the times ``t`` (s).
+
+    Drawn at the protocol's rate, so that a run has the same drift at every
+    sample rate, and interpolated linearly to ``t`` (its time constants are
+    minutes).
+    """
     phi = np.exp(-1.0 / (RATE_HZ * tau_s))
     white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, size))
     white[0] = rng.normal(0.0, std, size=size)
-    return lfilter([1.0], [1.0, -phi], white, axis=0)
+    drift = lfilter([1.0], [1.0, -phi], white, axis=0)
+    knots = np.arange(n) / RATE_HZ
+    return np.column_stack([np.interp(t, knots, drift[:, j]) for j in range(size)])
 
 
-def _lag(v, tau_s):
+def _lag(v, tau_s, rate_hz):
     """First-order lag (time constant ``tau_s``) along the time axis, starting at rest."""
-    alpha = 1.0 - np.exp(-1.0 / (RATE_HZ * tau_s))
+    alpha = 1.0 - np.exp(-1.0 / (rate_hz * tau_s))
     out, _ = lfilter([alpha], [1.0, alpha - 1.0], v, axis=0, zi=(1.0 - alpha) * v[:1])
     return out
 
@@ -162,24 +184,33 @@ def _base_pose(rng, setting, variation):
     return shaft * jitter, position
 
 
-def _draw_run(spec, variation):
-    """Per-run random quantities that do not need the time loop."""
+def _draw_run(spec, variation, rate_hz=RATE_HZ):
+    """Per-run random quantities that do not need the time loop, sampled at ``rate_hz``.
+
+    Everything is drawn in samples at the protocol's rate (:data:`RATE_HZ`),
+    so a run is the same motion with the same drifts at every ``rate_hz``.
+    """
     rng = np.random.default_rng(spec.seed)
-    q, n_sweep = run_protocol(rng, rate_hz=RATE_HZ)
-    n = len(q)
+    trajectory = protocol_trajectory(rng, rate_hz=RATE_HZ)
+    q, n_sweep = trajectory.sample(rate_hz)
+    n, n_protocol = len(q), trajectory.n_samples
+    t = np.arange(n) / rate_hz
     cfg = setting_parameters(spec.catheter, spec.setting)
     v = variation
     offsets = cfg["offsets"] + rng.normal(0.0, v["offset_jitter_deg"], 2)
-    offsets = offsets + _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
-    gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
-    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
+    offsets = offsets + _ou(rng, n_protocol, v["offset_drift_deg"], v["offset_drift_tau_s"], t)
+    gain_scale = 1.0 + rng.normal(0.0, v["gain_jitter"], 2) + _ou(
+        rng, n_protocol, v["gain_drift"], v["gain_drift_tau_s"], t
+    )
+    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets,
+            "gain_scale": gain_scale, "rate_hz": rate_hz, "n_protocol": n_protocol}
     if spec.change is not None:
         # same per-run jitter and drift; only the setting's offsets move
-        k = n_sweep + int(round(spec.change.after_s * RATE_HZ))
+        k = n_sweep + int(round(spec.change.after_s * rate_hz))
         if not n_sweep <= k < n:
             raise ValueError(
                 f"change_after_s={spec.change.after_s!r} s is outside the motion phase of run "
-                f"{spec.run!r}, which lasts {(n - n_sweep) / RATE_HZ:.1f} s."
+                f"{spec.run!r}, which lasts {(n - n_sweep) / rate_hz:.1f} s."
             )
         cfg_after = setting_parameters(spec.catheter, spec.change.setting)
         draw["cfg_after"] = cfg_after
@@ -233,6 +264,23 @@ def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
     return a, delta, p_k, cat.pulley_radius * (pos - neg)
 
 
+def _noise_stream(spec, draw, size):
+    """Where the per-sample noise of a run (torque, sensors, dropouts) is drawn from.
+
+    At the protocol's rate, the run's own stream, as always. At another rate
+    the run's stream first draws the torque noise it draws at the protocol's
+    rate (``size``, discarded), so that the base pose drawn next is that of
+    the run at the protocol's rate; the noise itself comes from a stream of
+    its own, derived from the run's seed.
+    """
+    rng = draw["rng"]
+    if draw["rate_hz"] == RATE_HZ:
+        return rng
+    rng.normal(size=size)
+    key = (*spec.seed.spawn_key, 2)
+    return np.random.default_rng(np.random.SeedSequence(spec.seed.entropy, spawn_key=key))
+
+
 def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     """Kinematics, torque and EM sensors of one run, vectorised over samples.
 
@@ -242,19 +290,20 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     over from that sample on, and the base of the bending section moves to a
     pose of the new setting.
     """
-    cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
+    cat, cfg, rng, rate_hz = spec.catheter, draw["cfg"], draw["rng"], draw["rate_hz"]
     q, n = draw["q"], len(draw["q"])
-    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
-    lagged = _lag(v, cat.tip_lag)
+    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau, rate_hz)  # tendon creep under load
+    lagged = _lag(v, cat.tip_lag, rate_hz)
     a, delta, p_k, drive = _mechanics(cat, cfg, lagged, phi, windup, draw["gain_scale"])
     k = draw.get("change_index")
     if k is not None:  # the new setting's mechanics from the change on
         a[k:], delta[k:], p_k[k:], drive[k:] = _mechanics(
             cat, draw["cfg_after"], lagged[k:], phi[k:], windup[k:], draw["gain_scale"][k:]
         )
-    omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
+    omega = np.gradient(q, 1.0 / rate_hz, axis=0)
     tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
-    tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
+    noise = _noise_stream(spec, draw, (draw["n_protocol"], 2))
+    tau = tau + noise.normal(0.0, cat.torque_noise, size=tau.shape)
     tau = np.round(tau / cat.torque_step) * cat.torque_step
 
     # base frame and sensors
@@ -276,10 +325,10 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
         base_rot = Rotation.concatenate(
             [base_rot[:k], Rotation.from_quat(np.repeat((r_b * mount.inv()).as_quat()[None], n - k, axis=0))]
         )
-    tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
-    base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
+    tip_meas, tip_quat = measure_pose(noise, tip_pos, tip_rot, field)
+    base_meas, base_quat = measure_pose(noise, base_pos, base_rot, field)
     if dropout_rate > 0:
-        lost = rng.random(n) < dropout_rate
+        lost = noise.random(n) < dropout_rate
         tip_meas[lost] = np.nan
         tip_quat[lost] = np.nan
     y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
@@ -303,7 +352,8 @@ def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, length
     sub_specs = [specs[j] for j in changed]
     configs = [draws[j]["cfg_after"] for j in changed]
     v_after, phi_after = simulate_transmission(
-        u_after, 1.0 / RATE_HZ, _transmission_params(sub_specs, configs), mechanism
+        u_after, 1.0 / draws[changed[0]]["rate_hz"], _transmission_params(sub_specs, configs),
+        mechanism,
     )
     windup_after = torsional_windup(u_after, np.array([c["windup"] for c in configs]))
     for i, j in enumerate(changed):
@@ -323,7 +373,7 @@ def _run_frame(spec, draw, tau, y):
             fmt.CATHETER: spec.catheter.name,
             fmt.SETTING: spec.setting.name,
             fmt.RUN: spec.run,
-            fmt.TIME: np.arange(n) / RATE_HZ,
+            fmt.TIME: np.arange(n) / draw["rate_hz"],
             fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
             "q1": q[:, 0], "q2": q[:, 1],
             "tau1": tau[:, 0], "tau2": tau[:, 1],
@@ -352,11 +402,12 @@ def _run_row(spec, draw, y, y_true, *, with_change):
     if with_change:
         k = draw.get("change_index")
         row["setting_after"] = None if k is None else spec.change.setting.name
-        row["change_time_s"] = np.nan if k is None else k / RATE_HZ
+        row["change_time_s"] = np.nan if k is None else k / draw["rate_hz"]
     return row
 
 
-def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None):
+def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None,
+                  rate_hz=RATE_HZ):
     """Simulate many runs at once.
 
     Parameters
@@ -372,6 +423,11 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     run_variation : dict or None
         Per-run variation replacing values of :data:`RUN_VARIATION` (see
         :func:`check_run_variation`).
+    rate_hz : float, default=10.0
+        Sample rate of the runs (Hz). The protocol, the per-run draws and
+        the drifts are those of :data:`RATE_HZ` whatever the rate; the
+        dynamics (lags, hysteresis, motor speed) run at ``rate_hz``, and
+        the per-sample noise keeps its standard deviation per sample.
 
     Returns
     -------
@@ -388,7 +444,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     if not 0.0 <= dropout_rate < 1.0:
         raise ValueError(f"dropout_rate must be in [0, 1); got {dropout_rate!r}.")
     variation = check_run_variation(run_variation)
-    draws = [_draw_run(s, variation) for s in specs]
+    draws = [_draw_run(s, variation, float(rate_hz)) for s in specs]
     lengths = np.array([len(d["q"]) for d in draws])
     n_max = lengths.max()
     u = np.empty((n_max, len(specs), 2))
@@ -396,7 +452,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
         u[: lengths[j], j] = d["u"]
         u[lengths[j]:, j] = d["u"][-1]
     v_all, phi_all = simulate_transmission(
-        u, 1.0 / RATE_HZ, _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
+        u, 1.0 / float(rate_hz), _transmission_params(specs, [d["cfg"] for d in draws]), mechanism
     )
     windup_all = torsional_windup(u, np.array([d["cfg"]["windup"] for d in draws]))
     changed = [j for j, d in enumerate(draws) if "change_index" in d]
@@ -443,6 +499,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
         "setting_after": [ShaftSetting, str, None],
         # a right end of inf, open: the time must be finite
         "change_after_s": [Interval(Real, 0, np.inf, closed="left")],
+        "rate_hz": [Interval(Real, 1, MAX_RATE_HZ, closed="both")],
     },
     prefer_skip_nested_validation=True,
 )
@@ -457,8 +514,9 @@ def simulate_run(
     dropout_rate=0.0,
     setting_after=None,
     change_after_s=60.0,
+    rate_hz=RATE_HZ,
 ):
-    """Simulate one recording: an 8-ray sweep then a 100-step random walk at 10 Hz.
+    """Simulate one recording: an 8-ray sweep then a 100-step random walk, at 10 Hz by default.
 
     With ``setting_after``, the shaft is repositioned during the motion
     phase: from ``change_after_s`` seconds after the first motion sample on,
@@ -490,6 +548,11 @@ def simulate_run(
     change_after_s : float, default=60.0
         Time of the repositioning after the first motion sample (s); used
         only with ``setting_after``. The motion phase lasts 164-218 s.
+    rate_hz : float, default=10.0
+        Sample rate (Hz), from 1 to 1000. The same run (motion, catheter,
+        drifts, base pose) sampled at this rate, with fresh per-sample noise
+        of the same standard deviation (``docs/simulator.rst``, *Sample
+        rate*); 10 gives the runs of the benchmark.
 
     Returns
     -------
@@ -515,7 +578,9 @@ def simulate_run(
         change = ShaftChange(setting_after, float(change_after_s), root.spawn(1)[0])
     spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1], change=change)
     dist = DistortionField(seeds[2]) if field else None
-    return simulate_runs([spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate)
+    return simulate_runs(
+        [spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate, rate_hz=rate_hz
+    )
 
 
 def _lookup_setting(name, setting):
