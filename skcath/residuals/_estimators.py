@@ -568,7 +568,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
 
         The rate is set by the first training data (or taken from
         ``pretrained``); later training data must be at that rate within
-        :data:`skcath._rate.RATE_TOLERANCE`.
+        ``skcath._rate.RATE_TOLERANCE`` (10 %).
         """
         name = type(self).__name__
         rate = training_rate(X, name)
@@ -694,7 +694,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         brought to the model's rate first: the network runs on the run
         resampled onto its ticks at ``rate_hz_``, and the residual is
         interpolated back to the run's own times
-        (:func:`skcath._rate.to_model_rate`, ``docs/residuals.rst``,
+        (``skcath._rate.to_model_rate``, ``docs/residuals.rst``,
         *Sample rates*).
         """
         if not self.initialized_ or not hasattr(self, "sigma_e_"):
