@@ -9,6 +9,12 @@ never mixed: padded row ``k`` holds only rows of the ``k``-th run.
 
 Both conversions are vectorised (one gather / one scatter over all rows).
 
+A sequence model counts time in samples. :func:`run_rates` gives the sample
+rate of every run, and :func:`resample_runs` brings runs to one rate (linear
+interpolation in time on a uniform grid), the rule the residual learners
+apply themselves to a run recorded at another rate than their training runs
+(``docs/residuals.rst``, *Sample rates*).
+
 Examples
 --------
 >>> padded = to_padded(X, ["q1", "q2"], y=y, phase="motion")  # doctest: +SKIP
@@ -16,6 +22,7 @@ Examples
 >>> per_row = from_padded(out.detach().cpu().numpy(), padded)  # doctest: +SKIP
 """
 
+from ._rate import resample_runs, run_rates
 from ._runs import PaddedRuns, from_padded, to_padded
 
-__all__ = ["PaddedRuns", "from_padded", "to_padded"]
+__all__ = ["PaddedRuns", "from_padded", "resample_runs", "run_rates", "to_padded"]

@@ -1243,3 +1243,57 @@ def test_streaming_step_with_another_number_of_channels(steppers):
                        r"one per channel of the recordings; got 5 value\(s\)"):
         estimator.step(0.0, 0.0, 0.0, 0.0, 0.0)
     assert estimator.n_steps_ == 0
+
+
+# sample rates: training runs at two rates, a run too slow for the model, the
+# times of a stream at another rate
+# ---------------------------------------------------------------------------
+def _run_slowed(X, factor):
+    """``X`` with the times of its last run multiplied by ``factor`` (a copy), and that run."""
+    run = X["run"].iloc[-1]
+    slowed = X.copy()
+    rows = (slowed["run"] == run).to_numpy()
+    slowed.loc[rows, "t"] = slowed.loc[rows, "t"] * factor
+    return slowed, run
+
+
+def test_training_runs_at_two_rates_name_the_runs(nominal):
+    """A learner counts time in samples: training runs at two rates are refused by name."""
+    Xb, y = nominal
+    X, run = _run_slowed(Xb, 2.0)  # that run at 5 Hz
+    before = X.copy()
+    with pytest.raises(ValueError, match=rf"GRUResidual learns time in samples, so its "
+                       rf"training runs must share one sample rate; most rows are at 10 Hz, "
+                       rf"but run\(s\) '{run}' at 5 Hz differ by more than 10 % "
+                       r"\(RATE_TOLERANCE\)\. Resample them to one rate first"):
+        _tiny_gru().fit(X, y)
+    pd.testing.assert_frame_equal(X, before)
+
+
+def test_run_too_slow_for_the_learner_is_refused(nominal, streaming):
+    """A run at a tenth of the learner's rate: refused by name, not silently mis-read."""
+    Xb, _ = nominal
+    X, run = _run_slowed(Xb, 10.0)  # that run at 1 Hz
+    residual = streaming[0].named_steps["residual"]
+    with pytest.raises(ValueError, match=rf"GRUResidual was fitted at 10 Hz and steps at that "
+                       rf"rate; run\(s\) '{run}' at 1 Hz are recorded slower than 0\.2 times "
+                       r"that rate \(MIN_RATE_FRACTION\)"):
+        residual.predict(X)
+
+
+def test_stream_at_another_rate_needs_increasing_times(streaming):
+    """A stream whose sweep is at 40 Hz steps at the model's ticks: each sample needs its time."""
+    pipe, sweep, samples = streaming
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep.assign(t=sweep["t"] / 4.0))
+    assert est.resampled_
+    with pytest.raises(ValueError, match=r"This stream is stepped at the model's rate of 10 Hz "
+                       r"\(its sweep, or an earlier sample, is at another rate or uneven\), so "
+                       r"every sample needs its time: pass step\(\.\.\., t=seconds\)"):
+        est.step(*samples[0])
+    t = float(sweep["t"].iloc[-1]) / 4.0 + 0.025
+    est.step(*samples[0], t=t)
+    at = re.escape(repr(t))
+    with pytest.raises(ValueError, match=rf"step got t={at} s; the times of a stream must be "
+                       rf"finite and increase, and the previous sample was at t={at} s"):
+        est.step(*samples[1], t=t)
+    assert est.n_steps_ == 1

@@ -17,7 +17,14 @@ from ._cache import SUFFIX, as_json_value, read_bunch, read_key, write_bunch
 from ._catheter import UNIT_SPREAD, Catheter, sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._sensors import DistortionField
-from ._simulator import RunSpec, ShaftChange, check_run_variation, simulate_runs
+from ._simulator import (
+    MAX_RATE_HZ,
+    RATE_HZ,
+    RunSpec,
+    ShaftChange,
+    check_run_variation,
+    simulate_runs,
+)
 
 __all__ = [
     "SIMULATOR_VERSION",
@@ -192,6 +199,7 @@ def _benchmark_field(random_state=0):
         "unit_spread": [Interval(Real, 0, 1, closed="both")],
         "run_variation": [dict, None],
         "catheters": [list, tuple, None],
+        "rate_hz": [Interval(Real, 1, MAX_RATE_HZ, closed="both")],
         "data_home": [str, os.PathLike, None],
         "cache": ["boolean"],
         "verbose": ["boolean"],
@@ -209,6 +217,7 @@ def make_benchmark(
     unit_spread=UNIT_SPREAD,
     run_variation=None,
     catheters=None,
+    rate_hz=RATE_HZ,
     data_home=None,
     cache=True,
     verbose=False,
@@ -279,6 +288,13 @@ def make_benchmark(
         with ``dataclasses.replace(benchmark_catheter(k), ...)`` is recorded
         in exactly the runs of the original, and ``[benchmark_catheter(k)]``
         gives the rows of ``Ck`` alone. Cached separately.
+    rate_hz : float, default=10.0
+        Sample rate of the recordings (Hz), from 1 to 1000. The runs are the
+        same at every rate (catheters, settings, motor trajectories, drifts,
+        base poses: the protocol is drawn at 10 Hz), sampled at ``rate_hz``
+        with fresh per-sample noise of the same standard deviation
+        (``docs/simulator.rst``, *Sample rate*). Cached separately when not
+        the default.
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
@@ -346,7 +362,7 @@ def make_benchmark(
     key = _cache_key(
         len(catheters), int(n_runs), mechanism, int(random_state), shaft_change,
         resweep=resweep, unit_spread=unit_spread, run_variation=run_variation,
-        catheters=catheters if given else None,
+        catheters=catheters if given else None, rate_hz=float(rate_hz),
     )
     path = _cache_path(key, data_home) if cache else None
     bunch = None if path is None else _load_cached(path, key)
@@ -359,12 +375,12 @@ def make_benchmark(
     )
     bunch = simulate_runs(
         specs, mechanism=mechanism, field=_benchmark_field(int(random_state)),
-        run_variation=run_variation,
+        run_variation=run_variation, rate_hz=float(rate_hz),
     )
     # as the cache gives them back: plain floats and lists
     bunch.catheters = as_json_value({c.name: c.to_dict() for c in catheters})
     bunch.key = key
-    bunch.DESCR = _describe(bunch, len(catheters), int(n_runs))
+    bunch.DESCR = _describe(bunch, len(catheters), int(n_runs), float(rate_hz))
     if verbose:
         logger.info("generated %d runs in %.1f s", len(specs), time.perf_counter() - start)
     if path is not None:
@@ -392,7 +408,7 @@ def _check_catheters(catheters):
 
 
 def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
-               resweep=False, unit_spread, run_variation, catheters):
+               resweep=False, unit_spread, run_variation, catheters, rate_hz=RATE_HZ):
     """What identifies a generated benchmark; the default benchmark keeps its first key."""
     key = {
         "version": SIMULATOR_VERSION,
@@ -411,6 +427,8 @@ def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
         key["run_variation"] = {k: float(v) for k, v in sorted(run_variation.items())}
     if catheters is not None:
         key["catheters"] = [cat.to_dict() for cat in catheters]
+    if rate_hz != RATE_HZ:
+        key["rate_hz"] = float(rate_hz)
     return as_json_value(key)
 
 
@@ -453,12 +471,12 @@ def _write_cached(path, bunch):
         tmp.unlink(missing_ok=True)
 
 
-def _describe(bunch, n_catheters, n_runs):
+def _describe(bunch, n_catheters, n_runs, rate_hz=RATE_HZ):
     runs = bunch.runs
     return (
         "skcath simulated catheter benchmark\n"
         f"{n_catheters} catheters x 17 shaft settings x {n_runs} runs = {len(runs)} runs, "
-        f"{len(bunch.X)} samples at 10 Hz; hysteresis mechanism: {bunch.mechanism}.\n"
+        f"{len(bunch.X)} samples at {rate_hz:g} Hz; hysteresis mechanism: {bunch.mechanism}.\n"
         "Each run: 8-ray outward-and-return sweep, then a 100-step random walk of both motors.\n"
         + (
             "The shaft is repositioned to another setting during each run's motion "

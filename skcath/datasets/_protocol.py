@@ -1,17 +1,120 @@
 """Motor trajectories of the recording protocol: an 8-ray sweep, then a random walk.
 
-All angles are motor angles in degrees; trajectories are sampled at ``rate_hz``.
+All angles are motor angles in degrees. A trajectory is a :class:`Trajectory`:
+pieces (moves and holds) whose durations are whole samples at the protocol's
+rate ``rate_hz``; it is a function of time, so it can be sampled at that rate
+or at any other (:meth:`Trajectory.sample`) and stays the same motion.
 """
+
+from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = [
+    "Trajectory",
     "min_jerk",
+    "protocol_trajectory",
     "sweep_trajectory",
     "random_walk_trajectory",
     "run_protocol",
     "resweep_trajectory",
 ]
+
+#: A sample counts as inside a piece when at most this fraction of a
+#: protocol sample beyond its end, so that rounding of the times never moves
+#: a sample to another piece.
+_POSITION_TOLERANCE = 1e-9
+
+
+def _min_jerk_at(tau):
+    """``10 tau^3 - 15 tau^4 + 6 tau^5``: the minimum-jerk profile at ``tau`` in [0, 1]."""
+    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+
+
+def _constant_speed_at(tau, ramp_fraction=0.1):
+    """The trapezoidal velocity profile at ``tau`` in [0, 1] (see :func:`constant_speed`)."""
+    a = ramp_fraction
+    v_max = 1.0 / (1.0 - a)
+    return np.where(
+        tau < a,
+        0.5 * v_max * tau**2 / a,
+        np.where(tau > 1 - a, 1.0 - 0.5 * v_max * (1.0 - tau) ** 2 / a, v_max * (tau - 0.5 * a)),
+    )
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """``n`` protocol samples from ``start`` to ``stop`` along ``profile`` (None: hold ``stop``)."""
+
+    n: int
+    start: np.ndarray
+    stop: np.ndarray
+    profile: object = None
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A motor trajectory of pieces of whole samples at ``rate_hz``, sampled at any rate.
+
+    Piece ``k`` covers the protocol samples ``N_k .. N_k + n_k - 1``; between
+    the last sample of the previous piece (position ``N_k - 1``) and its own
+    last sample it moves from its start to its stop along its profile
+    (minimum jerk or constant speed) or holds its stop. Sampling at another
+    rate evaluates the same pieces at the times ``m / sample_rate``.
+
+    Attributes
+    ----------
+    pieces : tuple
+        The pieces, in time order.
+    rate_hz : float
+        Rate of the protocol's samples (Hz).
+    n_sweep : int
+        Protocol samples of the sweep at the start (0: no sweep).
+    """
+
+    pieces: tuple
+    rate_hz: float
+    n_sweep: int = 0
+
+    @property
+    def n_samples(self):
+        """Number of protocol samples."""
+        return int(sum(p.n for p in self.pieces))
+
+    def _positions(self, sample_rate_hz):
+        """Protocol-sample positions ``m rate_hz / sample_rate_hz`` of the samples at a rate."""
+        last = (self.n_samples - 1) * sample_rate_hz / self.rate_hz
+        m = np.arange(int(np.floor(last + _POSITION_TOLERANCE)) + 1)
+        return m * self.rate_hz / sample_rate_hz
+
+    def sample(self, sample_rate_hz=None):
+        """The motor angles at ``sample_rate_hz`` (default: the protocol's rate).
+
+        Returns
+        -------
+        q : ndarray of shape (n, 2)
+            Motor angles (degrees) at ``t = m / sample_rate_hz``, ``m = 0 ..
+            n - 1``, up to the time of the last protocol sample. At the
+            protocol's own rate, exactly its samples.
+        n_sweep : int
+            Samples of the sweep: those up to its last protocol sample.
+        """
+        rate = self.rate_hz if sample_rate_hz is None else float(sample_rate_hz)
+        s = self._positions(rate)
+        ends = np.cumsum([p.n for p in self.pieces]) - 1  # last sample of every piece
+        piece = np.searchsorted(ends, s - _POSITION_TOLERANCE, side="left")
+        q = np.empty((len(s), 2))
+        for k, p in enumerate(self.pieces):
+            rows = np.flatnonzero(piece == k)
+            if not rows.size:
+                continue
+            if p.profile is None:
+                q[rows] = p.stop
+                continue
+            tau = (s[rows] - (ends[k] - p.n)) / p.n
+            q[rows] = p.start + (p.stop - p.start) * p.profile(tau)[:, None]
+        n_sweep = int(np.count_nonzero(s <= self.n_sweep - 1 + _POSITION_TOLERANCE))
+        return q, n_sweep
 
 
 def min_jerk(n):
@@ -28,8 +131,7 @@ def min_jerk(n):
         ``10 tau^3 - 15 tau^4 + 6 tau^5`` at ``tau = k / n``, ``k = 1..n``;
         the last value is exactly 1.
     """
-    tau = np.arange(1, n + 1) / n
-    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+    return _min_jerk_at(np.arange(1, n + 1) / n)
 
 
 def _move(start, stop, n, profile=None):
@@ -44,15 +146,25 @@ def constant_speed(n, ramp_fraction=0.1):
     Constant speed except for linear acceleration and deceleration ramps
     over ``ramp_fraction`` of the move at each end; the last value is 1.
     """
-    tau = np.arange(1, n + 1) / n
-    a = ramp_fraction
-    v_max = 1.0 / (1.0 - a)
-    s = np.where(
-        tau < a,
-        0.5 * v_max * tau**2 / a,
-        np.where(tau > 1 - a, 1.0 - 0.5 * v_max * (1.0 - tau) ** 2 / a, v_max * (tau - 0.5 * a)),
-    )
-    return s
+    return _constant_speed_at(np.arange(1, n + 1) / n, ramp_fraction)
+
+
+def _sweep_pieces(amplitude_deg, speed_deg_s, dwell_out_s, dwell_in_s, rest_s, n_rays,
+                  first_direction_deg, rate_hz):
+    """The pieces of :func:`sweep_trajectory`, durations in samples at ``rate_hz``."""
+    n_move = max(1, int(round(amplitude_deg / speed_deg_s * rate_hz)))
+    origin = np.zeros(2)
+    pieces = [_Piece(max(1, int(round(rest_s * rate_hz))), origin, origin)]
+    for k in range(n_rays):
+        psi = np.deg2rad(first_direction_deg + 360.0 * k / n_rays)
+        end = amplitude_deg * np.array([np.cos(psi), np.sin(psi)])
+        pieces += [
+            _Piece(n_move, origin, end, _constant_speed_at),
+            _Piece(int(round(dwell_out_s * rate_hz)), end, end),
+            _Piece(n_move, end, origin, _constant_speed_at),
+            _Piece(int(round(dwell_in_s * rate_hz)), origin, origin),
+        ]
+    return [p for p in pieces if p.n > 0]
 
 
 def sweep_trajectory(
@@ -93,17 +205,9 @@ def sweep_trajectory(
     q : ndarray of shape (n, 2)
         Motor angles (degrees).
     """
-    n_move = max(1, int(round(amplitude_deg / speed_deg_s * rate_hz)))
-    parts = [np.zeros((max(1, int(round(rest_s * rate_hz))), 2))]
-    origin = np.zeros(2)
-    for k in range(n_rays):
-        psi = np.deg2rad(first_direction_deg + 360.0 * k / n_rays)
-        end = amplitude_deg * np.array([np.cos(psi), np.sin(psi)])
-        parts.append(_move(origin, end, n_move, constant_speed))
-        parts.append(np.repeat(end[None], int(round(dwell_out_s * rate_hz)), axis=0))
-        parts.append(_move(end, origin, n_move, constant_speed))
-        parts.append(np.zeros((int(round(dwell_in_s * rate_hz)), 2)))
-    return np.concatenate(parts)
+    pieces = _sweep_pieces(amplitude_deg, speed_deg_s, dwell_out_s, dwell_in_s, rest_s,
+                           n_rays, first_direction_deg, rate_hz)
+    return Trajectory(tuple(pieces), float(rate_hz)).sample()[0]
 
 
 def _reflect_into_disk(q, radius):
@@ -114,6 +218,25 @@ def _reflect_into_disk(q, radius):
     r_new = abs(2.0 * radius - r) % (2.0 * radius)
     r_new = min(r_new, radius)
     return q * (r_new / r)
+
+
+def _walk_pieces(rng, n_samples, n_steps, step_std_deg, radius_deg, start):
+    """The pieces of :func:`random_walk_trajectory` (the same draws)."""
+    if n_samples < n_steps:
+        raise ValueError(f"n_samples={n_samples} must be >= n_steps={n_steps}.")
+    durations = rng.uniform(1.0, 2.6, size=n_steps)
+    bounds = np.round(np.cumsum(durations) / durations.sum() * n_samples).astype(int)
+    lengths = np.diff(np.concatenate([[0], bounds]))
+    if np.any(lengths < 1):  # pathological draws: fall back to equal steps
+        lengths = np.full(n_steps, n_samples // n_steps)
+        lengths[: n_samples - lengths.sum()] += 1
+    q = np.asarray(start, dtype=float)
+    pieces = []
+    for n in lengths:
+        target = _reflect_into_disk(q + rng.normal(0.0, step_std_deg, size=2), radius_deg)
+        pieces.append(_Piece(int(n), q, target, _min_jerk_at))
+        q = target
+    return pieces
 
 
 def random_walk_trajectory(
@@ -151,24 +274,38 @@ def random_walk_trajectory(
     q : ndarray of shape (n_samples, 2)
         Motor angles (degrees).
     """
-    if n_samples < n_steps:
-        raise ValueError(f"n_samples={n_samples} must be >= n_steps={n_steps}.")
-    durations = rng.uniform(1.0, 2.6, size=n_steps)
-    bounds = np.round(np.cumsum(durations) / durations.sum() * n_samples).astype(int)
-    lengths = np.diff(np.concatenate([[0], bounds]))
-    if np.any(lengths < 1):  # pathological draws: fall back to equal steps
-        lengths = np.full(n_steps, n_samples // n_steps)
-        lengths[: n_samples - lengths.sum()] += 1
-    q = np.asarray(start, dtype=float)
-    parts = []
-    for n in lengths:
-        target = _reflect_into_disk(q + rng.normal(0.0, step_std_deg, size=2), radius_deg)
-        parts.append(_move(q, target, int(n)))
-        q = target
-    return np.concatenate(parts)
+    pieces = _walk_pieces(rng, n_samples, n_steps, step_std_deg, radius_deg, start)
+    # one sample per protocol sample: the rate does not matter
+    return Trajectory(tuple(pieces), 1.0).sample()[0]
 
 
-def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0):
+def protocol_trajectory(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0):
+    """The trajectory of one run, the 8-ray sweep then a 100-step random walk, as pieces.
+
+    Draws what :func:`run_protocol` draws; its durations are whole samples at
+    ``rate_hz``, and :meth:`Trajectory.sample` samples it at any rate.
+
+    Returns
+    -------
+    trajectory : Trajectory
+        With ``n_sweep``, the sweep's samples at ``rate_hz``.
+    """
+    speed = 2.4 * (1.0 + rng.uniform(-0.03, 0.03))
+    sweep = _sweep_pieces(amplitude_deg, speed, 0.0, 2.5, 3.0, 8, 0.0, rate_hz)
+    n_sweep = sum(p.n for p in sweep)
+    n_total = int(rng.integers(n_samples_range[0], n_samples_range[1] + 1))
+    n_motion = n_total - n_sweep
+    if n_motion < 1000:
+        raise ValueError(
+            f"n_samples_range={n_samples_range} leaves {n_motion} motion samples after a "
+            f"{n_sweep}-sample sweep; expected at least 1000."
+        )
+    walk = _walk_pieces(rng, n_motion, 100, 22.0, amplitude_deg, (0.0, 0.0))
+    return Trajectory(tuple(sweep + walk), float(rate_hz), n_sweep)
+
+
+def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0,
+                 sample_rate_hz=None):
     """Motor trajectory of one run: the 8-ray sweep, then a 100-step random walk.
 
     The sweep speed varies by a few percent from run to run; the total length
@@ -179,11 +316,15 @@ def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_d
     rng : numpy.random.Generator
         Source of randomness.
     rate_hz : float
-        Sampling rate (Hz).
+        Rate of the protocol (Hz): the durations of its moves are whole
+        samples at this rate.
     n_samples_range : tuple of int
-        Inclusive range of the total number of samples of the run.
+        Inclusive range of the total number of samples of the run at ``rate_hz``.
     amplitude_deg : float
         Sweep amplitude and random-walk radius (degrees).
+    sample_rate_hz : float or None
+        Rate at which the trajectory is sampled (Hz); None samples it at
+        ``rate_hz``. The same draws give the same motion at every rate.
 
     Returns
     -------
@@ -192,17 +333,10 @@ def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_d
     n_sweep : int
         Number of sweep samples at the start of ``q``.
     """
-    speed = 2.4 * (1.0 + rng.uniform(-0.03, 0.03))
-    q_sweep = sweep_trajectory(amplitude_deg=amplitude_deg, speed_deg_s=speed, rate_hz=rate_hz)
-    n_total = int(rng.integers(n_samples_range[0], n_samples_range[1] + 1))
-    n_motion = n_total - len(q_sweep)
-    if n_motion < 1000:
-        raise ValueError(
-            f"n_samples_range={n_samples_range} leaves {n_motion} motion samples after a "
-            f"{len(q_sweep)}-sample sweep; expected at least 1000."
-        )
-    q_motion = random_walk_trajectory(rng, n_motion, radius_deg=amplitude_deg)
-    return np.concatenate([q_sweep, q_motion]), len(q_sweep)
+    trajectory = protocol_trajectory(
+        rng, rate_hz=rate_hz, n_samples_range=n_samples_range, amplitude_deg=amplitude_deg
+    )
+    return trajectory.sample(sample_rate_hz)
 
 
 def resweep_trajectory(q, n_sweep, change_index, *, rate_hz=10.0, speed_deg_s=2.4, return_s=2.0):

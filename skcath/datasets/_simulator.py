@@ -20,12 +20,27 @@ from ..frames import tip_in_base_frame
 from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
-from ._protocol import resweep_trajectory, run_protocol
+from ._protocol import protocol_trajectory, resweep_trajectory
 from ._sensors import DistortionField, measure_pose
 
-__all__ = ["RUN_VARIATION", "RunSpec", "ShaftChange", "check_run_variation", "simulate_runs", "simulate_run"]
+__all__ = [
+    "MAX_RATE_HZ",
+    "RATE_HZ",
+    "RUN_VARIATION",
+    "RunSpec",
+    "ShaftChange",
+    "check_run_variation",
+    "simulate_runs",
+    "simulate_run",
+]
 
+#: Rate of the protocol (Hz): the durations of its moves, the run lengths and
+#: the per-run draws are counted in samples at this rate, whatever the rate
+#: the runs are sampled at (``rate_hz``).
 RATE_HZ = 10.0
+
+#: Highest sample rate the simulator accepts (Hz).
+MAX_RATE_HZ = 1000.0
 
 #: Suffix of the run id of the part of a run after its shaft change and re-sweep.
 AFTER_SUFFIX = "/after"
@@ -128,12 +143,19 @@ class RunSpec:
     change: ShaftChange | None = None
 
 
-def _ou(rng, n, std, tau_s, size=2):
-    """Stationary Ornstein-Uhlenbeck series of shape (n, size) sampled at RATE_HZ."""
+def _ou(rng, n, std, tau_s, t, size=2):
+    """Stationary Ornstein-Uhlenbeck series of ``n`` samples at RATE_HZ, at the times ``t`` (s).
+
+    Drawn at the protocol's rate, so that a run has the same drift at every
+    sample rate, and interpolated linearly to ``t`` (its time constants are
+    minutes).
+    """
     phi = np.exp(-1.0 / (RATE_HZ * tau_s))
     white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, size))
     white[0] = rng.normal(0.0, std, size=size)
-    return lfilter([1.0], [1.0, -phi], white, axis=0)
+    drift = lfilter([1.0], [1.0, -phi], white, axis=0)
+    knots = np.arange(n) / RATE_HZ
+    return np.column_stack([np.interp(t, knots, drift[:, j]) for j in range(size)])
 
 
 def _ou_from(rng, last, n, std, tau_s):
@@ -149,9 +171,9 @@ def _resweep_seed(seed):
     return np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, 0), pool_size=seed.pool_size)
 
 
-def _lag(v, tau_s):
+def _lag(v, tau_s, rate_hz):
     """First-order lag (time constant ``tau_s``) along the time axis, starting at rest."""
-    alpha = 1.0 - np.exp(-1.0 / (RATE_HZ * tau_s))
+    alpha = 1.0 - np.exp(-1.0 / (rate_hz * tau_s))
     out, _ = lfilter([alpha], [1.0, alpha - 1.0], v, axis=0, zi=(1.0 - alpha) * v[:1])
     return out
 
@@ -187,27 +209,39 @@ def _base_pose(rng, setting, variation):
     return shaft * jitter, position
 
 
-def _draw_run(spec, variation):
-    """Per-run random quantities that do not need the time loop."""
+def _draw_run(spec, variation, rate_hz=RATE_HZ):
+    """Per-run random quantities that do not need the time loop, sampled at ``rate_hz``.
+
+    Everything is drawn in samples at the protocol's rate (:data:`RATE_HZ`),
+    so a run is the same motion with the same drifts at every ``rate_hz``.
+    """
+    if spec.change is not None and spec.change.resweep and rate_hz != RATE_HZ:
+        raise ValueError(
+            f"a re-sweep after the shaft change (resweep=True) is simulated at "
+            f"rate_hz={RATE_HZ:g} only; got rate_hz={rate_hz!r}."
+        )
     rng = np.random.default_rng(spec.seed)
-    q, n_sweep = run_protocol(rng, rate_hz=RATE_HZ)
-    n = len(q)
+    trajectory = protocol_trajectory(rng, rate_hz=RATE_HZ)
+    q, n_sweep = trajectory.sample(rate_hz)
+    n, n_protocol = len(q), trajectory.n_samples
+    t = np.arange(n) / rate_hz
     cfg = setting_parameters(spec.catheter, spec.setting)
     v = variation
     jitter = rng.normal(0.0, v["offset_jitter_deg"], 2)
-    drift = _ou(rng, n, v["offset_drift_deg"], v["offset_drift_tau_s"])
+    drift = _ou(rng, n_protocol, v["offset_drift_deg"], v["offset_drift_tau_s"], t)
     offsets = cfg["offsets"] + jitter + drift
     gain_jitter = rng.normal(0.0, v["gain_jitter"], 2)
-    gain_drift = _ou(rng, n, v["gain_drift"], v["gain_drift_tau_s"])
+    gain_drift = _ou(rng, n_protocol, v["gain_drift"], v["gain_drift_tau_s"], t)
     gain_scale = 1.0 + gain_jitter + gain_drift
-    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "gain_scale": gain_scale}
+    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets,
+            "gain_scale": gain_scale, "rate_hz": rate_hz, "n_protocol": n_protocol}
     if spec.change is not None:
         # same per-run jitter and drift; only the setting's offsets move
-        k = n_sweep + int(round(spec.change.after_s * RATE_HZ))
+        k = n_sweep + int(round(spec.change.after_s * rate_hz))
         if not n_sweep <= k < n:
             raise ValueError(
                 f"change_after_s={spec.change.after_s!r} s is outside the motion phase of run "
-                f"{spec.run!r}, which lasts {(n - n_sweep) / RATE_HZ:.1f} s."
+                f"{spec.run!r}, which lasts {(n - n_sweep) / rate_hz:.1f} s."
             )
         cfg_after = setting_parameters(spec.catheter, spec.change.setting)
         draw["cfg_after"] = cfg_after
@@ -290,18 +324,35 @@ def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
     return a, delta, p_k, cat.pulley_radius * (pos - neg)
 
 
-def _creep_and_lag(cat, v):
+def _creep_and_lag(cat, v, rate_hz=RATE_HZ):
     """The effective tendon input after the slow tendon creep and the lag of the section."""
-    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau)  # tendon creep under load
-    return _lag(v, cat.tip_lag)
+    v = v - cat.slow_creep_gain * _lag(v, cat.slow_creep_tau, rate_hz)  # tendon creep under load
+    return _lag(v, cat.tip_lag, rate_hz)
 
 
-def _drive_torque(cat, q, drive, rng):
+def _drive_torque(cat, q, drive, rng, rate_hz=RATE_HZ):
     """Measured motor torques (N mm): the tendon torque plus motor friction, noise and rounding."""
-    omega = np.gradient(q, 1.0 / RATE_HZ, axis=0)
+    omega = np.gradient(q, 1.0 / rate_hz, axis=0)
     tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
     tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
     return np.round(tau / cat.torque_step) * cat.torque_step
+
+
+def _noise_stream(spec, draw, size):
+    """Where the per-sample noise of a run (torque, sensors, dropouts) is drawn from.
+
+    At the protocol's rate, the run's own stream, as always. At another rate
+    the run's stream first draws the torque noise it draws at the protocol's
+    rate (``size``, discarded), so that the base pose drawn next is that of
+    the run at the protocol's rate; the noise itself comes from a stream of
+    its own, derived from the run's seed.
+    """
+    rng = draw["rng"]
+    if draw["rate_hz"] == RATE_HZ:
+        return rng
+    rng.normal(size=size)
+    key = (*spec.seed.spawn_key, 2)
+    return np.random.default_rng(np.random.SeedSequence(spec.seed.entropy, spawn_key=key))
 
 
 def _mounted(cat, p_k):
@@ -342,15 +393,16 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
     over from that sample on, and the base of the bending section moves to a
     pose of the new setting.
     """
-    cat, cfg, rng = spec.catheter, draw["cfg"], draw["rng"]
-    lagged = _creep_and_lag(cat, v)
+    cat, cfg, rng, rate_hz = spec.catheter, draw["cfg"], draw["rng"], draw["rate_hz"]
+    lagged = _creep_and_lag(cat, v, rate_hz)
     a, delta, p_k, drive = _mechanics(cat, cfg, lagged, phi, windup, draw["gain_scale"])
     k = draw.get("change_index")
     if k is not None:  # the new setting's mechanics from the change on
         a[k:], delta[k:], p_k[k:], drive[k:] = _mechanics(
             cat, draw["cfg_after"], lagged[k:], phi[k:], windup[k:], draw["gain_scale"][k:]
         )
-    tau = _drive_torque(cat, draw["q"], drive, rng)
+    noise = _noise_stream(spec, draw, (draw["n_protocol"], 2))
+    tau = _drive_torque(cat, draw["q"], drive, noise, rate_hz)
     y_true = _mounted(cat, p_k)
     tip_pos, tip_rot, base_pos, base_rot = _poses(
         cat, *_base_pose(rng, spec.setting, variation), p_k, a, delta
@@ -362,7 +414,7 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
         tip_rot = Rotation.concatenate([tip_rot[:k], rot_after])
         base_pos[k:] = base_after
         base_rot = Rotation.concatenate([base_rot[:k], base_rot_after])
-    y, sensors = _measure(rng, (tip_pos, tip_rot, base_pos, base_rot), field, dropout_rate)
+    y, sensors = _measure(noise, (tip_pos, tip_rot, base_pos, base_rot), field, dropout_rate)
     return tau, y, y_true, sensors
 
 
@@ -397,9 +449,9 @@ def _padded(inputs):
     return u
 
 
-def _transmission(u, specs, configs, mechanism):
-    """Effective tendon input, friction utilisation and wind-up of padded inputs ``u``."""
-    v, phi = simulate_transmission(u, 1.0 / RATE_HZ, _transmission_params(specs, configs), mechanism)
+def _transmission(u, specs, configs, mechanism, rate_hz=RATE_HZ):
+    """Effective tendon input, friction utilisation and wind-up of padded inputs ``u`` sampled at ``rate_hz``."""
+    v, phi = simulate_transmission(u, 1.0 / rate_hz, _transmission_params(specs, configs), mechanism)
     return v, phi, torsional_windup(u, np.array([c["windup"] for c in configs]))
 
 
@@ -417,7 +469,8 @@ def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, length
         u_after[: lengths[j], i] = draws[j]["u_after"]
         u_after[lengths[j]:, i] = draws[j]["u_after"][-1]
     v_after, phi_after, windup_after = _transmission(
-        u_after, [specs[j] for j in changed], [draws[j]["cfg_after"] for j in changed], mechanism
+        u_after, [specs[j] for j in changed], [draws[j]["cfg_after"] for j in changed], mechanism,
+        draws[changed[0]]["rate_hz"],
     )
     for i, j in enumerate(changed):
         k = draws[j]["change_index"]
@@ -452,7 +505,7 @@ class _Recording(NamedTuple):
     """One recorded run: what its rows in ``X`` and its row in ``runs`` are made of.
 
     ``start`` is the sample of the simulated run at which the recording
-    starts (its time ``t`` is ``(start + i) / RATE_HZ``); ``drift`` holds
+    starts (its time ``t`` is ``(start + i) / rate_hz``); ``drift`` holds
     the run's own offsets and gains at its first motion sample, less its
     setting's (:func:`_drift_columns`), and ``columns`` the extra columns of
     its row in ``runs``.
@@ -467,6 +520,7 @@ class _Recording(NamedTuple):
     y: np.ndarray
     y_true: np.ndarray
     sensors: np.ndarray
+    rate_hz: float
     drift: dict
     columns: dict
 
@@ -506,11 +560,11 @@ def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
     columns = {}
     if with_change:
         columns["setting_after"] = None if k is None else spec.change.setting.name
-        columns["change_time_s"] = np.nan if k is None else k / RATE_HZ
+        columns["change_time_s"] = np.nan if k is None else k / draw["rate_hz"]
     if with_resweep:
         columns["before_run"] = None
     drift = _drift_columns(draw["q"], draw["u"], draw["gain_scale"], draw["cfg"]["offsets"], draw["n_sweep"])
-    run = _Recording(spec.run, spec.setting, 0, draw["q"], draw["n_sweep"], *finished, drift, columns)
+    run = _Recording(spec.run, spec.setting, 0, draw["q"], draw["n_sweep"], *finished, draw["rate_hz"], drift, columns)
     if swept is None:
         return [run]
     part = draw["resweep"]
@@ -522,7 +576,7 @@ def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
     )
     after = _Recording(
         f"{spec.run}{AFTER_SUFFIX}", spec.change.setting, k + n_home, part["q"][n_home:],
-        draw["n_sweep"], *swept, drift,
+        draw["n_sweep"], *swept, draw["rate_hz"], drift,
         {**columns, "setting_after": None, "change_time_s": np.nan, "before_run": spec.run},
     )
     return [run.head(k), after]
@@ -538,7 +592,7 @@ def _run_frame(rec, catheter):
             fmt.CATHETER: catheter.name,
             fmt.SETTING: rec.setting.name,
             fmt.RUN: rec.run,
-            fmt.TIME: (rec.start + np.arange(n)) / RATE_HZ,
+            fmt.TIME: (rec.start + np.arange(n)) / rec.rate_hz,
             fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
             "q1": rec.q[:, 0], "q2": rec.q[:, 1],
             "tau1": rec.tau[:, 0], "tau2": rec.tau[:, 1],
@@ -568,7 +622,8 @@ def _run_row(rec, spec):
     }
 
 
-def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None):
+def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_variation=None,
+                  rate_hz=RATE_HZ):
     """Simulate many runs at once.
 
     Parameters
@@ -584,6 +639,12 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     run_variation : dict or None
         Per-run variation replacing values of :data:`RUN_VARIATION` (see
         :func:`check_run_variation`).
+    rate_hz : float, default=10.0
+        Sample rate of the runs (Hz). The protocol, the per-run draws and
+        the drifts are those of :data:`RATE_HZ` whatever the rate; the
+        dynamics (lags, hysteresis, motor speed) run at ``rate_hz``, and
+        the per-sample noise keeps its standard deviation per sample. Runs
+        with a re-sweep after their shaft change are simulated at 10 Hz only.
 
     Returns
     -------
@@ -600,10 +661,12 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     if not 0.0 <= dropout_rate < 1.0:
         raise ValueError(f"dropout_rate must be in [0, 1); got {dropout_rate!r}.")
     variation = check_run_variation(run_variation)
-    draws = [_draw_run(s, variation) for s in specs]
+    draws = [_draw_run(s, variation, float(rate_hz)) for s in specs]
     lengths = np.array([len(d["q"]) for d in draws])
     u = _padded([d["u"] for d in draws])
-    v_all, phi_all, windup_all = _transmission(u, specs, [d["cfg"] for d in draws], mechanism)
+    v_all, phi_all, windup_all = _transmission(
+        u, specs, [d["cfg"] for d in draws], mechanism, float(rate_hz)
+    )
     changed = [j for j, d in enumerate(draws) if "change_index" in d]
     if changed:
         _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism)
@@ -656,6 +719,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
         # a right end of inf, open: the time must be finite
         "change_after_s": [Interval(Real, 0, np.inf, closed="left")],
         "resweep": ["boolean"],
+        "rate_hz": [Interval(Real, 1, MAX_RATE_HZ, closed="both")],
     },
     prefer_skip_nested_validation=True,
 )
@@ -671,8 +735,9 @@ def simulate_run(
     setting_after=None,
     change_after_s=60.0,
     resweep=False,
+    rate_hz=RATE_HZ,
 ):
-    """Simulate one recording: an 8-ray sweep then a 100-step random walk at 10 Hz.
+    """Simulate one recording: an 8-ray sweep then a 100-step random walk, at 10 Hz by default.
 
     With ``setting_after``, the shaft is repositioned during the motion
     phase: from ``change_after_s`` seconds after the first motion sample on,
@@ -708,7 +773,12 @@ def simulate_run(
         With ``setting_after``: at the change, the run performs its sweep
         again in the new setting, then goes on with the rest of its motion
         (see :func:`make_benchmark`, ``resweep``). The part after the change
-        is the run ``run + "/after"``.
+        is the run ``run + "/after"``. Simulated at 10 Hz only.
+    rate_hz : float, default=10.0
+        Sample rate (Hz), from 1 to 1000. The same run (motion, catheter,
+        drifts, base pose) sampled at this rate, with fresh per-sample noise
+        of the same standard deviation (``docs/simulator.rst``, *Sample
+        rate*); 10 gives the runs of the benchmark.
 
     Returns
     -------
@@ -739,7 +809,9 @@ def simulate_run(
         )
     spec = RunSpec(run=run, catheter=catheter, setting=setting, repeat=0, seed=seeds[1], change=change)
     dist = DistortionField(seeds[2]) if field else None
-    return simulate_runs([spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate)
+    return simulate_runs(
+        [spec], mechanism=mechanism, field=dist, dropout_rate=dropout_rate, rate_hz=rate_hz
+    )
 
 
 def _lookup_setting(name, setting):

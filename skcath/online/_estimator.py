@@ -25,14 +25,17 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions, va
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
+from .._rate import RATE_TOLERANCE, TICK_TOLERANCE, to_model_rate
 from .._runs import run_codes
 from .._validation import check_recordings, motor_columns
 from ..backbones import (
+    BACKBONE_COLUMNS,
     PCCBackbone,
     PCCParams,
     PDLBackbone,
     PolynomialBackbone,
     PolynomialParams,
+    play_kernel,
     play_operator,
 )
 from ..exceptions import PipelineChangedWarning
@@ -40,7 +43,7 @@ from ..frames import sweep_frame
 from ..residuals import GRUResidual, GRUResidualModule, MLPResidual, MLPResidualModule, NoResidual
 from ..sweep import find_rays
 from ._fast import BackboneStep, NumpyStep
-from ._sample import real_sample
+from ._sample import as_real, real_sample
 from ._weights import fitted_fingerprint, step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
@@ -208,6 +211,30 @@ def _motor_range(q, q_neutral, q_margin):
     return amplitude, (math.inf if q_margin is None else (1.0 + q_margin) * amplitude)
 
 
+def _sweep_at_rate(residual, X, nominal, run, channels):
+    """The sweep brought to the residual's rate, or None if it is at that rate already.
+
+    ``X`` holds the checked sweep rows of one run, ``nominal`` the backbone's
+    tip on them (mm), ``channels`` its motor and torque columns. Returns the
+    rotation ``R_SB`` of the resampled sweep (``frame="sweep"``, else None),
+    its frame (for the context), its last sample (the values of
+    ``channels``) and its number of ticks, as ``predict`` sees the run.
+    """
+    rate = getattr(residual, "rate_hz_", None)
+    at_rate = to_model_rate(X.assign(**dict(zip(BACKBONE_COLUMNS, nominal.T))), rate,
+                            type(residual).__name__)
+    if at_rate is None:
+        return None
+    Xr = at_rate.X
+    motors = [c for c in channels if c.startswith("q")]
+    q = Xr[motors].to_numpy(dtype=np.float64)
+    rotation = None
+    if residual.frame == "sweep":
+        rotation = sweep_frame(q, Xr[list(BACKBONE_COLUMNS)].to_numpy(), run=run, n_motors=len(motors))
+    last = Xr[list(channels)].to_numpy(dtype=np.float64)[-1]
+    return rotation, Xr, tuple(float(v) for v in last), len(Xr)
+
+
 def _neutral_angles(params):
     """Neutral motor angles (deg) of a calibration: for a polynomial, the centre of its angles."""
     if isinstance(params, PolynomialParams):
@@ -340,6 +367,14 @@ class OnlineEstimator(BaseEstimator):
         The started copy of ``detector`` (only with a detector).
     shaft_changed_ : bool
         Last answer of ``detector_`` (only with a detector).
+    rate_hz_ : float or None
+        Rate of the residual learner (Hz, its ``rate_hz_``), at which the
+        model steps; None without a learned residual.
+    resampled_ : bool
+        Whether the stream is stepped at the model's ticks rather than once
+        per sample: from :meth:`start` on when the sweep is at another rate
+        than ``rate_hz_`` (or uneven), or from the first sample given with a
+        time ``t`` whose time step is not within 10 % of the model's step.
 
     See Also
     --------
@@ -357,6 +392,29 @@ class OnlineEstimator(BaseEstimator):
     exact to 1e-9 mm. The first step after :meth:`start` or :meth:`reset`
     takes its motor differences from the last sweep sample, as ``predict``
     does for the first motion row.
+
+    **Streams at another rate.** The residual learner counts time in
+    samples at its rate ``rate_hz_``. A sweep at another rate (or uneven)
+    is brought to that rate as ``predict`` brings the run: the context and
+    the sweep frame are those of the sweep resampled onto the ticks
+    ``t_0 + k / rate_hz_`` from its first sample (``docs/residuals.rst``,
+    *Sample rates*), and :meth:`step` then needs the time ``t`` of every
+    sample. The model steps whenever the stream's time reaches its next
+    tick, on the sample interpolated linearly between the previous sample
+    and this one at the tick (a sample spanning several ticks steps it
+    several times). Every sample returns the backbone's tip at the sample
+    itself plus the residual of the latest tick, held until the next tick
+    (0 before the first motion tick). ``predict`` interpolates the residual
+    between the ticks around a row instead, and takes the backbone's tip at
+    a tick from the rows around it where the step evaluates the backbone at
+    the interpolated angles. On rows that fall on a tick, the two agree as
+    at the model's rate (for a backbone without play; the play in the step
+    moves at the ticks, in ``predict`` at every row); between ticks they
+    differ by at most the residual's change within one tick
+    (``docs/deploying.rst``, *Streams at another rate*). A stream whose sweep is at the model's rate,
+    given ``t``, is stepped once per sample until a time step leaves the
+    10 % tolerance; from then on it is stepped at the ticks, counted from
+    the last sample (``predict`` resamples such a run as a whole).
 
     The two engines run the same step on the same folded weights; they
     differ in the order of the additions within a matrix-vector product and,
@@ -431,17 +489,14 @@ class OnlineEstimator(BaseEstimator):
         self._play_start = tuple(float(v) for v in played[-1])
         self.rotation_ = None
         self.context_ = None
+        self._start_clock(X, residual, q, tau)
         if residual is not None:
-            if residual.frame == "sweep":
-                self.rotation_ = sweep_frame(q, calibration.nominal, run=run, n_motors=len(motors))
-            if residual.use_context:
-                self.context_ = residual.encode_context(X, dtype=self.dtype)[0]
+            self._encode_sweep(residual, X, q, calibration.nominal, run)
         self.q_neutral_ = _neutral_angles(self.backbone_params_)
         self.q_amplitude_ = float(np.hypot.reduce(q - self.q_neutral_, axis=1).max())
         self.q_limit_ = (
             math.inf if self.q_margin is None else (1.0 + self.q_margin) * self.q_amplitude_
         )
-        self._last_sweep = (*(float(v) for v in q[-1]), *(float(v) for v in tau[-1]))
         self._qn = tuple(float(v) for v in self.q_neutral_)
         self._limit2 = self.q_limit_ * self.q_limit_
         self._step_inputs = _step_inputs(residual, self.rotation_, self.context_)
@@ -452,6 +507,35 @@ class OnlineEstimator(BaseEstimator):
             self.shaft_changed_ = False
         self._started = True
         return self.reset()
+
+    def _start_clock(self, X, residual, q, tau):
+        """The stream's clock: the model's rate, the sweep's end, stepping per sample."""
+        self.rate_hz_ = None if residual is None else getattr(residual, "rate_hz_", None)
+        self.resampled_ = False
+        self._last_sweep = (*(float(v) for v in q[-1]), *(float(v) for v in tau[-1]))
+        t = X[fmt.TIME].to_numpy(dtype=np.float64)
+        self._sweep_end = (float(t[-1]), self._last_sweep)
+        self._tick0 = float(t[0])
+        self._n_sweep_ticks = 0
+
+    def _encode_sweep(self, residual, X, q, nominal, run):
+        """The sweep frame ``rotation_`` and context ``context_`` of a sweep, at the model's rate.
+
+        ``nominal`` is the backbone's tip on the sweep's rows (mm). A sweep at
+        another rate than the residual's is brought to it first, as
+        ``predict`` brings the run (``resampled_``).
+        """
+        resampled = _sweep_at_rate(residual, X, nominal, run, self.channels_)
+        if resampled is None:
+            if residual.frame == "sweep":
+                self.rotation_ = sweep_frame(q, nominal, run=run, n_motors=q.shape[1])
+            if residual.use_context:
+                self.context_ = residual.encode_context(X, dtype=self.dtype)[0]
+            return
+        self.rotation_, Xr, self._last_sweep, self._n_sweep_ticks = resampled
+        self.resampled_ = True
+        if residual.use_context:
+            self.context_ = residual.encode_context(Xr, dtype=self.dtype)[0]
 
     def _pack(self, step_class):
         """The step's packed arrays from what :meth:`start` took from the pipeline.
@@ -468,6 +552,7 @@ class OnlineEstimator(BaseEstimator):
                                 getattr(self, "_play_start", None))
         n_channels = self._n_channels = len(self._channels())
         self._packed = step_class(backbone, weights, clip, use_torque, self.dtype, n_channels)
+        self._backbone = backbone
         self._call = self._packed.call
         self._last = self._packed.last  # updated by every step
         self.nominal_ = self._packed.nominal
@@ -574,18 +659,26 @@ class OnlineEstimator(BaseEstimator):
         )
         # the kept play (none before the play existed, e.g. unpickled) over the new sweep
         played = play_operator(q, getattr(self, "play_width_", 0.0))
-        rotation = context = None
+        nominal = _kept_nominal(self.backbone_params_, played)
+        rotation = context = at_rate = None
         if residual is not None:
-            if residual.frame == "sweep":
-                rotation = sweep_frame(q, _kept_nominal(self.backbone_params_, played), run=run)
+            # a sweep at another rate than the model's is brought to it, as in start
+            at_rate = _sweep_at_rate(residual, X, nominal, run, channels)
+            if at_rate is not None:
+                rotation, Xr, _, _ = at_rate
+            elif residual.frame == "sweep":
+                rotation = sweep_frame(q, nominal, run=run)
             if residual.use_context:
-                context = residual.encode_context(X, dtype=self.dtype)[0]
+                context = residual.encode_context(X if at_rate is None else Xr, dtype=self.dtype)[0]
         detector = None if self.detector is None else copy.deepcopy(self.detector).start(X)
 
         self.run_, self.rotation_, self.context_ = run, rotation, context
         self.q_neutral_ = np.array(rays.q_neutral, dtype=float)
         self.q_amplitude_, self.q_limit_ = _motor_range(q, self.q_neutral_, self.q_margin)
-        self._last_sweep = tuple(float(v) for v in (*q[-1], *tau[-1]))
+        self._start_clock(X, residual, q, tau)
+        if at_rate is not None:
+            _, _, self._last_sweep, self._n_sweep_ticks = at_rate
+            self.resampled_ = True
         self._play_start = tuple(float(v) for v in played[-1])
         self._qn = tuple(float(v) for v in self.q_neutral_)
         self._limit2 = self.q_limit_ * self.q_limit_
@@ -606,7 +699,7 @@ class OnlineEstimator(BaseEstimator):
     # taken at start and the running state, and loading packs the step again
     # from those (not from the pipeline, which may have been refit since)
     # and restores the state.
-    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_")
+    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_", "_backbone")
 
     def __getstate__(self):
         state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
@@ -657,6 +750,11 @@ class OnlineEstimator(BaseEstimator):
         self._packed.reset(self._last_sweep)
         self.n_steps_ = 0
         self.n_held_ = 0
+        self._ticking = self.resampled_ = getattr(self, "_n_sweep_ticks", 0) > 0
+        self._t_prev, self._x_prev = getattr(self, "_sweep_end", (None, None))
+        self._tick = getattr(self, "_n_sweep_ticks", 0)
+        self._residual_last = np.zeros(3)
+        self._sample_play = getattr(self, "_play_start", None) or (0.0,) * len(self._qn)
         return self
 
     def _pipeline_changed(self):
@@ -690,6 +788,7 @@ class OnlineEstimator(BaseEstimator):
 
     # ------------------------------------------------------------------ step
     _started = False
+    _ticking = False  # stepping at the model's ticks (another rate, uneven times)
 
     def _accept(self, sample):
         """The sample to step with after the bad-input policy (a tuple of floats)."""
@@ -734,7 +833,7 @@ class OnlineEstimator(BaseEstimator):
             total += d * d
         return total
 
-    def step(self, *sample, out=None):
+    def step(self, *sample, t=None, out=None):
         """Tip position for one motor sample.
 
         Parameters
@@ -749,6 +848,15 @@ class OnlineEstimator(BaseEstimator):
             scalar); ``bool``, strings, bytes, ``Decimal`` and complex
             numbers raise ``TypeError``, as in
             :meth:`ShaftChangeDetector.step`.
+        t : float or None, default=None
+            Time of the sample (s), on the clock of the sweep's ``t``,
+            increasing. None steps the model once per sample, as for a
+            stream at the model's rate. With ``t``, the model steps at its
+            own rate ``rate_hz_``: once per sample while every time step is
+            within 10 % of the model's step, and otherwise at its ticks (see
+            *Notes*). Needed once the stream is ``resampled_``; ignored for
+            a pipeline without a learned residual (the backbone has no time
+            scale).
         out : ndarray of shape (3,), dtype float64, optional
             Written in place and returned; without it a new array is
             returned. Passing ``out`` keeps the loop free of allocations.
@@ -767,6 +875,8 @@ class OnlineEstimator(BaseEstimator):
                 break
         if len(sample) != self._n_channels:
             sample = real_sample(sample, self._channels())  # raises: a wrong count
+        if t is not None or self._ticking:
+            t = self._check_time(t)
         total = sum(sample)
         # NaN or inf in any channel makes the sum NaN or inf, which fails the test
         if not (total - total == 0.0 and self._distance2(sample) <= self._limit2):
@@ -779,9 +889,68 @@ class OnlineEstimator(BaseEstimator):
                 "out must be a writeable float64 array of shape (3,); got "
                 f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
             )
-        function, meta, f, theta, w, w32, buf = self._call
-        function(meta, f, theta, w, w32, buf, out, sample)
+        if t is None:
+            function, meta, f, theta, w, w32, buf = self._call
+            function(meta, f, theta, w, w32, buf, out, sample)
+        else:
+            self._timed_step(sample, t, out)
         self.n_steps_ += 1
         if self.detector is not None:
             self.shaft_changed_ = bool(self.detector_.step(*sample))
         return out
+
+    # ------------------------------------------------------------ the model's rate
+    def _check_time(self, t):
+        """The time of a sample as a float, checked; None where the model has no rate."""
+        if getattr(self, "rate_hz_", None) is None:  # also: pickled before rates were kept
+            return None
+        if t is None:
+            raise ValueError(
+                f"This stream is stepped at the model's rate of {self.rate_hz_:.4g} Hz (its "
+                "sweep, or an earlier sample, is at another rate or uneven), so every sample "
+                "needs its time: pass step(..., t=seconds)."
+            )
+        t = as_real(t, "t")
+        if not (math.isfinite(t) and t > self._t_prev):
+            raise ValueError(
+                f"step got t={t!r} s; the times of a stream must be finite and increase, and "
+                f"the previous sample was at t={self._t_prev!r} s (the sweep's clock)."
+            )
+        return t
+
+    def _timed_step(self, sample, t, out):
+        """:meth:`step` of a sample with its time: once per sample, or at the model's ticks."""
+        function, meta, f, theta, w, w32, buf = self._call
+        rate = self.rate_hz_
+        if not self._ticking:
+            if abs((t - self._t_prev) * rate - 1.0) <= RATE_TOLERANCE:
+                function(meta, f, theta, w, w32, buf, out, sample)
+                self._residual_last = out - self.nominal_
+                self._t_prev = t
+                return
+            # from here on at the ticks, counted from the last sample stepped
+            self._ticking = self.resampled_ = True
+            self._tick0, self._tick = self._t_prev, 1
+            self._x_prev = tuple(float(v) for v in self._last)
+            self._sample_play = tuple(float(v) for v in self.play_state_)
+        t_prev, x_prev = self._t_prev, self._x_prev
+        reach = t + TICK_TOLERANCE / rate
+        tick = self._tick0 + self._tick / rate
+        while tick <= reach:
+            a = min(max((tick - t_prev) / (t - t_prev), 0.0), 1.0)
+            at = tuple(p + a * (c - p) for p, c in zip(x_prev, sample))
+            function(meta, f, theta, w, w32, buf, out, at)
+            self._residual_last = out - self.nominal_
+            self._tick += 1
+            tick = self._tick0 + self._tick / rate
+        self._t_prev, self._x_prev = t, sample
+        out[:] = self._nominal_at(sample[: len(self._qn)])
+        out += self._residual_last
+
+    def _nominal_at(self, q):
+        """The backbone's tip (mm) at one sample's motor angles, its play stepped at every sample."""
+        width = getattr(self, "play_width_", 0.0)
+        if width > 0.0:
+            q = tuple(play_kernel(z, v, width) for z, v in zip(self._sample_play, q))
+            self._sample_play = q
+        return self._backbone(*q)

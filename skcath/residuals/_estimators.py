@@ -33,6 +33,7 @@ from skorch.utils import is_dataset, to_tensor
 
 from .. import _format as fmt
 from .._base import RecordingsMixin
+from .._rate import RATE_TOLERANCE, to_model_rate, training_rate
 from .._runs import group_positions
 from .._validation import check_recordings, motor_columns
 from ..backbones import BACKBONE_COLUMNS
@@ -590,12 +591,34 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
                 self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
                 self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
                 self.sigma_e_ = source.sigma_e_.copy()
+                self.rate_hz_ = getattr(source, "rate_hz_", None)
             else:
-                for name in ("x_scaler_", "s_scaler_", "sigma_e_"):
+                for name in ("x_scaler_", "s_scaler_", "sigma_e_", "rate_hz_"):
                     self.__dict__.pop(name, None)
+
+    def _record_rate(self, X):
+        """Set ``rate_hz_`` from the training runs, or check them against it.
+
+        The rate is set by the first training data (or taken from
+        ``pretrained``); later training data must be at that rate within
+        ``skcath._rate.RATE_TOLERANCE`` (10 %).
+        """
+        name = type(self).__name__
+        rate = training_rate(X, name)
+        known = getattr(self, "rate_hz_", None)
+        if known is None:
+            self.rate_hz_ = rate
+        elif rate is not None and abs(rate / known - 1.0) > RATE_TOLERANCE:
+            raise ValueError(
+                f"This {name} counts time in samples at {known:.4g} Hz, the rate it was first "
+                f"fitted (or pretrained) at, but these training runs are at {rate:.4g} Hz. "
+                "Resample them to that rate first (skcath.sequences.resample_runs), or fit "
+                "a new model."
+            )
 
     def _partial_fit(self, X, y, sample_weight=None, **fit_params):
         """Train the initialised network for ``max_epochs`` on checked recordings."""
+        self._record_rate(X)
         F, motion, sweep, e, _ = self._sequences(X, y)
         if not hasattr(self, "sigma_e_"):
             self._fit_statistics(F, e, sample_weight)
@@ -701,6 +724,15 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         -------
         r : ndarray of shape (n_samples, 3)
             Residual (mm) in the base frame, each coordinate within ``clip``.
+
+        Notes
+        -----
+        A run recorded at another rate than ``rate_hz_``, or unevenly, is
+        brought to the model's rate first: the network runs on the run
+        resampled onto its ticks at ``rate_hz_``, and the residual is
+        interpolated back to the run's own times
+        (``skcath._rate.to_model_rate``, ``docs/residuals.rst``,
+        *Sample rates*).
         """
         if not self.initialized_ or not hasattr(self, "sigma_e_"):
             raise NotFittedError(
@@ -709,6 +741,13 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         check_device(self.device, type(self).__name__)
         X, _ = self._check_X(X)
         self._check_motor_count(X)
+        at_rate = to_model_rate(X, getattr(self, "rate_hz_", None), type(self).__name__)
+        if at_rate is None:
+            return self._residual(X)
+        return at_rate.to_rows(self._residual(at_rate.X))
+
+    def _residual(self, X):
+        """:meth:`predict_residual` of checked recordings at the model's rate."""
         # the network's own precision: float32, or float64 after module_.double()
         dtype = self._module_dtype()
         F, motion, sweep, _, rotations = self._sequences(X, dtype=dtype)
@@ -763,6 +802,9 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         X, _ = check_recordings(X)
         self._check_torques(X)
         self._check_motor_count(X)
+        at_rate = to_model_rate(X, getattr(self, "rate_hz_", None), type(self).__name__)
+        if at_rate is not None:
+            X = at_rate.X
         dtype = self._module_dtype() if dtype is None else np.dtype(dtype)
         names = sweep_feature_names(self.use_torque, self._n_motors())
         sweep = to_padded(X, names, phase=fmt.SWEEP, dtype=np.float64)
@@ -859,7 +901,11 @@ _COMMON_PARAMS = """
     batch_size : int, default=64
         Windows per optimisation step (and runs per batch in ``predict``).
     window : int or None, default=200
-        Length of the training windows (motion steps). Whole motion sequences
+        Length of the training windows (motion steps). Every time scale of
+        the learner counts samples at the rate of its training runs,
+        ``rate_hz_`` (200 steps are 20 s at 10 Hz); recordings at another
+        rate are brought to it in ``predict`` (``docs/residuals.rst``,
+        *Sample rates*). Whole motion sequences
         are cut into overlapping windows so that a batch holds many of them;
         None trains on whole sequences (one item per run).
     window_step : int, default=None
@@ -931,6 +977,13 @@ _COMMON_ATTRIBUTES = """
     sigma_e_ : ndarray of shape (3,)
         Standard deviation of the training residual ``e`` per coordinate (mm)
         of the frame the network works in (see ``frame``).
+    rate_hz_ : float or None
+        Sample rate of the training runs (Hz): one over the median time
+        step of their rows. The runs must share it within 10 %
+        (``skcath._rate.RATE_TOLERANCE``); ``predict`` resamples a run
+        recorded at another rate, or unevenly, onto ticks at this rate and
+        refuses one slower than a fifth of it. None when no training run
+        has two rows.
     history_ : skorch.History
         Per-epoch training (and validation) loss.
     n_motors_ : int
