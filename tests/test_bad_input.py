@@ -1172,6 +1172,31 @@ def test_resweep_without_a_shaft_change_is_refused(tmp_path):
                        r"it needs shaft_change=True"):
         make_benchmark(n_catheters=1, n_runs=1, resweep=True, data_home=tmp_path)
     assert not list(tmp_path.iterdir())
+
+
+def test_resweep_at_another_rate_is_refused(tmp_path):
+    """The simulated re-sweep after a shaft change exists at the protocol's 10 Hz only."""
+    with pytest.raises(ValueError, match=r"re-sweep after the shaft change \(resweep=True\) is "
+                       r"simulated at rate_hz=10 only; got rate_hz=40"):
+        make_benchmark(n_catheters=1, n_runs=1, shaft_change=True, resweep=True, rate_hz=40,
+                       data_home=tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
+def test_resweep_with_other_channels_is_refused(streaming):
+    """A re-sweep without the torques the start sweep had: both channel lists, nothing changed."""
+    pipe, sweep, _ = streaming
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+    context = est.context_.copy()
+    with pytest.raises(ValueError, match=r"missing the column\(s\) \['tau1', 'tau2'\]"):
+        est.resweep(sweep.drop(columns=["tau1", "tau2", *REFERENCE]))
+    with pytest.raises(ValueError, match=r"the re-sweep has the channels q1, q2, q3, tau1, tau2, "
+                       r"tau3, but the sweep given to start\(\) had q1, q2, tau1, tau2"):
+        est.resweep(sweep.drop(columns=REFERENCE).assign(q3=0.0, tau3=0.0))
+    np.testing.assert_array_equal(est.context_, context)
+
+
+# ---------------------------------------------------------------------------
 # any number of motors: gaps in the motor columns, torques of some motors,
 # learners and backbones given another number of motors or no torque
 # ---------------------------------------------------------------------------
