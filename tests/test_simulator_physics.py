@@ -683,13 +683,14 @@ def test_routing_turns_and_scales_the_bend_vector():
     assert_allclose(scaled, theta * (1 + b3 * np.cos(3 * delta - x3))[:, None], atol=1e-12)
 
 
-def test_first_order_lag_step_response():
+@pytest.mark.parametrize("rate_hz", [RATE_HZ, 40.0])
+def test_first_order_lag_step_response(rate_hz):
     tau = 0.2
     v = np.concatenate([np.full(5, 2.0), np.full(100, 7.0)])
-    out = _lag(np.stack([v, -v], axis=1), tau)
+    out = _lag(np.stack([v, -v], axis=1), tau, rate_hz)
     assert_allclose(out[:5], np.tile([2.0, -2.0], (5, 1)), rtol=1e-12)  # starts at rest
     k = np.arange(1, 101)
-    expected = 7.0 - 5.0 * np.exp(-k / (RATE_HZ * tau))
+    expected = 7.0 - 5.0 * np.exp(-k / (rate_hz * tau))
     assert_allclose(out[5:, 0], expected, rtol=1e-12)
     assert_allclose(out[5:, 1], -expected, rtol=1e-12)
 
