@@ -53,7 +53,10 @@ def step_feature_names(use_torque: bool = True, n_motors: int = 2) -> tuple[str,
 
 
 def sweep_feature_names(use_torque: bool = True, n_motors: int = 2) -> tuple[str, ...]:
-    """Names of the sweep features ``s_k``: ``[q1 .. qN, tau1 .. tauN]`` or ``[q1 .. qN]``."""
+    """Names of the sweep features ``s_k``: the motor angles, then the torques when used.
+
+    ``[q1 .. qN, tau1 .. tauN]``, or ``[q1 .. qN]`` without torques.
+    """
     torque = fmt.torque_names(n_motors) if use_torque else ()
     return (*fmt.motor_names(n_motors), *torque)
 
