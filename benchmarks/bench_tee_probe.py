@@ -45,7 +45,7 @@ acquisitions 2 and 3:
 The polynomial's degree (1-9) and the learners' ``use_torque`` (per motor
 and learner, :data:`DEFAULT_GRID`) are chosen on acquisition 1 alone: its
 motion rows are cut into 20 contiguous blocks, and each of two folds
-(``sklearn.model_selection.PredefinedSplit``; the grid is a
+(``skcath.model_selection.BlockKFold(2, n_blocks=20)``; the grid is a
 ``ParameterGrid``) hides the targets of every other block (set to NaN,
 which the polynomial and the learners skip as tracker dropouts) and scores
 the errors there, with the motor signals of the whole acquisition as input.
@@ -79,7 +79,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
-from sklearn.model_selection import ParameterGrid, PredefinedSplit
+from sklearn.model_selection import ParameterGrid
 from sklearn.pipeline import Pipeline
 
 from skcath import MOTOR_COLUMNS
@@ -87,6 +87,7 @@ from skcath.backbones import PolynomialBackbone
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording
 from skcath.metrics import per_run_rmse
+from skcath.model_selection import BlockKFold
 from skcath.residuals import GRUResidual, MLPResidual
 
 REPO = Path(__file__).resolve().parents[1]
@@ -261,10 +262,16 @@ BASE_LEARNER = dict(
 DEFAULT_GRID = {"max_epochs": [200], "use_torque": [True, False]}
 #: Used without a search (``--no-search``; ``--quick`` with 2 epochs).
 DEFAULT_CONFIG = {"max_epochs": 200, "use_torque": True}
+#: The blocked cross-validation inside acquisition 1: 2 folds of 20 blocks.
+BLOCKS = {"n_splits": 2, "n_blocks": 20}
 
 
 def make_method(method, degree, config, seed):
-    """The estimator of ``method``: the polynomial backbone, or a Pipeline with a residual."""
+    """The estimator of ``method``: the polynomial backbone, or a Pipeline with a residual.
+
+    Only public estimators of skcath: ``PolynomialBackbone`` alone, or in a
+    ``sklearn.pipeline.Pipeline`` before ``MLPResidual`` or ``GRUResidual``.
+    """
     backbone = PolynomialBackbone(degree, calibration="fit")
     if method == "polynomial":
         return backbone
@@ -301,34 +308,15 @@ def first_leg(X):
     return rows
 
 
-def block_folds(X, n_folds=2, n_blocks_per_fold=10):
-    """Blocked cross-validation inside one run, as a ``PredefinedSplit``.
-
-    The motion rows are cut into ``n_folds * n_blocks_per_fold`` contiguous
-    blocks of (nearly) equal length; fold ``k`` holds out the blocks ``k,
-    k + n_folds, ...``. Sweep rows are never held out.
-
-    Returns
-    -------
-    cv : sklearn.model_selection.PredefinedSplit
-        Its ``split()`` gives the row positions of each fold's training and
-        held-out rows.
-    """
-    motion = np.flatnonzero((X["phase"] == "motion").to_numpy())
-    test_fold = np.full(len(X), -1)
-    for b, block in enumerate(np.array_split(motion, n_folds * n_blocks_per_fold)):
-        test_fold[block] = b % n_folds
-    return PredefinedSplit(test_fold)
-
-
 def cv_rmse(method, X, y, degree, config, seed, folds):
     """Mean held-out RMSE (mm) of ``method`` over the blocked folds of one run.
 
-    The training targets of a fold's held-out rows are set to NaN; the input
-    is the whole run, so that every model sees an unbroken time series.
+    ``folds`` is a :class:`skcath.model_selection.BlockKFold`. The training
+    targets of a fold's held-out rows are set to NaN; the input is the whole
+    run, so that every model sees an unbroken time series.
     """
     scores = []
-    for _, test in folds.split():
+    for _, test in folds.split(X):
         held = np.zeros(len(X), dtype=bool)
         held[test] = True
         y_train = np.array(y, dtype=np.float64)
@@ -347,7 +335,7 @@ def select_degree(X, y, degrees=range(1, 10), folds=None):
     table : pandas.DataFrame
         Columns ``degree, cv_rmse_mm``.
     """
-    folds = block_folds(X) if folds is None else folds
+    folds = BlockKFold(**BLOCKS) if folds is None else folds
     rows = [
         {"degree": d, "cv_rmse_mm": cv_rmse("polynomial", X, y, d, None, None, folds)}
         for d in degrees
@@ -363,7 +351,7 @@ def _settings(config):
 
 def select_config(method, X, y, degree, grid, seed=0, folds=None):
     """Learner settings with the lowest blocked-CV RMSE inside the training run."""
-    folds = block_folds(X) if folds is None else folds
+    folds = BlockKFold(**BLOCKS) if folds is None else folds
     rows = []
     for config in ParameterGrid(grid):
         rows.append({**config, "cv_rmse_mm": cv_rmse(method, X, y, degree, config, seed, folds)})
@@ -430,7 +418,7 @@ def run_benchmark(
     for motor in motors:
         data = load_motor(folder, motor, n_sweep=n_sweep)
         X1, y1 = data.X[1], data.y[1]
-        folds = block_folds(X1)
+        folds = BlockKFold(**BLOCKS)
         degree, degree_table = select_degree(X1, y1, degrees, folds)
         log(f"motor{motor}: polynomial degree {degree} (blocked CV in acq1: "
             + ", ".join(f"{r.degree}:{r.cv_rmse_mm:.2f}" for r in degree_table.itertuples())

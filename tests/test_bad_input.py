@@ -39,7 +39,7 @@ from skcath.exceptions import (
 )
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
-from skcath.model_selection import LeaveOneSettingOut
+from skcath.model_selection import BlockKFold, LeaveOneSettingOut
 from skcath.online import OnlineEstimator, ShaftChangeDetector
 from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
@@ -1322,3 +1322,32 @@ def test_stream_at_another_rate_needs_increasing_times(streaming):
                        rf"finite and increase, and the previous sample was at t={at} s"):
         est.step(*samples[1], t=t)
     assert est.n_steps_ == 1
+
+
+# ---------------------------------------------------------------------------
+# blocked K-fold inside runs (BlockKFold): fewer blocks than folds, a run
+# shorter than its blocks, groups of another length
+# ---------------------------------------------------------------------------
+def test_block_kfold_with_fewer_blocks_than_folds(bench):
+    """Every fold must test a block of every run: n_blocks below n_splits is refused."""
+    X, _ = bench
+    with pytest.raises(ValueError, match=r"n_blocks=3 must be at least n_splits=4"):
+        next(BlockKFold(4, n_blocks=3).split(X))
+
+
+def test_block_kfold_run_shorter_than_its_blocks(bench):
+    """A run with fewer motion rows than n_blocks is named, with its count."""
+    X, _ = bench
+    run = X["run"].iloc[0]
+    n_motion = int(((X["run"] == run) & (X["phase"] == "motion")).sum())
+    with pytest.raises(ValueError, match=rf"Run \(group\) '{run}' has {n_motion} row\(s\) to "
+                       rf"test, fewer than n_blocks={n_motion + 1}: lower n_blocks"):
+        next(BlockKFold(2, n_blocks=n_motion + 1).split(X))
+
+
+def test_block_kfold_groups_of_another_length(bench):
+    """groups must label every row of X: a groups of the wrong length is refused."""
+    X, _ = bench
+    with pytest.raises(ValueError, match=rf"groups must hold one label per row of X "
+                       rf"\({len(X)} rows\); got shape \({len(X) - 1},\)"):
+        next(BlockKFold().split(X, groups=X["run"].iloc[1:]))

@@ -22,7 +22,8 @@ from sklearn.pipeline import Pipeline
 
 from skcath.backbones import PolynomialBackbone
 from skcath.io import read_recording
-from skcath.metrics import per_run_rmse
+from skcath.metrics import mean_per_run_rmse, per_run_rmse
+from skcath.model_selection import BlockKFold
 from skcath.residuals import GRUResidual, MLPResidual
 
 #: skcath name -> column(s) of the TEE-probe CSV files: the motor channels, and
@@ -211,6 +212,32 @@ def test_hidden_targets_are_skipped_by_the_whole_pipeline(synthetic_folder):
     assert np.isfinite(pred).all()
     assert np.abs(pred - fitted(y_other).predict(X)).max() > 1.0
     assert_array_equal(fitted(y_hidden).predict(X), pred)  # seeded: reproducible
+
+
+def test_blocked_cross_validation_inside_an_acquisition(synthetic_folder):
+    # the benchmark's choices inside acquisition 1: 2 folds of 20 blocks of its
+    # motion rows, the held-out targets hidden as NaN, scored on the held-out rows
+    folder, _ = synthetic_folder
+    X, y = _read(folder / _file(1, 1), 1, 1)
+    motion = np.flatnonzero((X["phase"] == "motion").to_numpy())
+    folds = list(BlockKFold(2, n_blocks=20).split(X))
+    assert len(folds) == 2
+    tested = np.concatenate([test for _, test in folds])
+    assert_array_equal(np.sort(tested), motion)  # every motion row once, no sweep row
+    scores = []
+    for k, (train, test) in enumerate(folds):
+        assert np.isin(np.arange(10), train).all()
+        # block b of the motion rows is tested by fold b % 2
+        blocks = np.array_split(motion, 20)
+        assert_array_equal(test, np.concatenate(blocks[k::2]))
+        y_hidden = y.copy()
+        y_hidden[test] = np.nan
+        model = PolynomialBackbone(degree=3, calibration="fit").fit(X, y_hidden)
+        y_test = np.full_like(y, np.nan)
+        y_test[test] = y[test]
+        scores.append(mean_per_run_rmse(y_test, model.predict(X), X))
+    constant = np.sqrt(np.mean(np.sum((y[motion] - y[motion].mean(axis=0)) ** 2, axis=1)))
+    assert np.all(np.isfinite(scores)) and max(scores) < 0.5 * constant
 
 
 def _real_folder():

@@ -166,18 +166,8 @@ def _no_fold_error(caller, excluded):
 # ---------------------------------------------------------------------------
 # base class
 # ---------------------------------------------------------------------------
-class _RecordingSplitter(BaseCrossValidator):
-    """Common part: parameters, ``split`` and ``get_n_splits`` from a fold plan.
-
-    Subclasses implement ``_plan(layout, counting=False)``, which returns the
-    folds as a list of ``(catheter_code, test_pairs)``: the catheter of the
-    fold and the (catheter, setting) pair codes it tests. The row masks are
-    built one fold at a time in ``split``. With ``_within_catheter`` True the
-    training set is the rest of the fold's catheter, otherwise all other
-    catheters.
-    """
-
-    _within_catheter = True
+class _ParamSplitter(BaseCrossValidator):
+    """``get_params`` and ``set_params`` from the constructor's arguments."""
 
     def get_params(self, deep=True):
         """Parameters of the splitter (for :func:`sklearn.base.clone`).
@@ -220,6 +210,20 @@ class _RecordingSplitter(BaseCrossValidator):
     def _param_names(cls):
         signature = inspect.signature(cls.__init__)
         return [p for p in signature.parameters if p != "self"]
+
+
+class _RecordingSplitter(_ParamSplitter):
+    """Common part: ``split`` and ``get_n_splits`` from a fold plan.
+
+    Subclasses implement ``_plan(layout, counting=False)``, which returns the
+    folds as a list of ``(catheter_code, test_pairs)``: the catheter of the
+    fold and the (catheter, setting) pair codes it tests. The row masks are
+    built one fold at a time in ``split``. With ``_within_catheter`` True the
+    training set is the rest of the fold's catheter, otherwise all other
+    catheters.
+    """
+
+    _within_catheter = True
 
     def _layout(self, X, method, groups):
         caller = f"{type(self).__name__}.{method}"
