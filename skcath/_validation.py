@@ -41,6 +41,7 @@ __all__ = [
     "REFERENCE_TOLERANCE_MM",
     "check_quat_order",
     "check_recordings",
+    "check_sweeps",
     "check_target",
     "check_tip_offset",
     "factorize_ids",
@@ -506,6 +507,55 @@ def _phase_masks(X: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return sweep, ~sweep
 
 
+def _check_every_run_swept(sweep, codes, runs, needed_by=None, without=None) -> None:
+    """Raise if a run of the codes ``codes`` has no row of the mask ``sweep``.
+
+    ``needed_by`` names what reads the sweep and ``without`` says what to do
+    for recordings without one; both enter the message when given.
+    """
+    n_sweep = np.bincount(codes[sweep], minlength=len(runs))
+    no_sweep = np.flatnonzero(n_sweep == 0)
+    if not no_sweep.size:
+        return
+    why = (
+        "every run must start with its calibration sweep"
+        if needed_by is None
+        else f"{needed_by} reads the calibration sweep at the start of every run"
+    )
+    raise ValueError(
+        f"Run(s) {_list_items(runs[no_sweep])} have no {SWEEP!r} rows; {why} (rows with "
+        f"{PHASE!r} == {SWEEP!r} and the reference tip {list(REFERENCE_COLUMNS)}). "
+        + ("" if without is None else without + " ")
+        + CUT_RUN_HINT
+    )
+
+
+def check_sweeps(X: pd.DataFrame, needed_by: str, without: str) -> None:
+    """Raise unless every run of checked recordings has sweep rows.
+
+    For the estimators that read the sweep only with some of their
+    parameters: they check the recordings with ``require_sweep=False`` and
+    then call this when their parameters need the sweep.
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        Recordings checked by :func:`check_recordings` (with the ``run`` and
+        ``phase`` columns); never modified.
+    needed_by : str
+        What reads the sweep, e.g. ``"GRUResidual(frame='sweep')"``.
+    without : str
+        What to do instead for recordings without a sweep, one sentence.
+
+    Raises
+    ------
+    ValueError
+        Naming the runs without sweep rows, ``needed_by`` and ``without``.
+    """
+    codes, runs = factorize_ids(X, RUN)
+    _check_every_run_swept((X[PHASE] == SWEEP).to_numpy(), codes, runs, needed_by, without)
+
+
 def _check_phase_order(
     X: pd.DataFrame,
     sweep: np.ndarray,
@@ -517,15 +567,7 @@ def _check_phase_order(
 ) -> None:
     """Raise if a run has no sweep rows or a sweep row follows a motion row."""
     if require_sweep:
-        n_sweep = np.bincount(codes[sweep], minlength=len(runs))
-        no_sweep = np.flatnonzero(n_sweep == 0)
-        if no_sweep.size:
-            raise ValueError(
-                f"Run(s) {_list_items(runs[no_sweep])} have no {SWEEP!r} rows; "
-                "every run must start with its calibration sweep (rows with "
-                f"{PHASE!r} == {SWEEP!r} and the reference tip {list(REFERENCE_COLUMNS)}). "
-                + CUT_RUN_HINT
-            )
+        _check_every_run_swept(sweep, codes, runs)
     sorted_sweep = sweep[order]
     sorted_codes = codes[order]
     late = sorted_sweep[1:] & ~sorted_sweep[:-1] & (sorted_codes[1:] == sorted_codes[:-1])
@@ -864,6 +906,8 @@ def check_recordings(
     require_sweep : bool, default True
         Require every run to contain at least one sweep row (needs ``phase``
         in ``columns``). Sweep rows must precede motion rows in any case.
+        False accepts runs whose rows are all ``"motion"`` (a rig without a
+        sweep phase); the estimators that read no sweep check with False.
     copy : bool, default True
         Return a deep copy of ``X``. With False, the returned frame may share
         unconverted column data with ``X`` (pandas copy-on-write still keeps

@@ -165,17 +165,22 @@ def mean_per_run_rmse(y_true, y_pred, X, *, phase=fmt.MOTION):
 
 
 def _check_whole_runs(X):
-    """Raise if a run of the scored recordings has no sweep rows (a cut run)."""
+    """Raise if some runs of the scored recordings have sweep rows and others none (a cut run).
+
+    Recordings of a rig without a sweep phase, where no run has a sweep row,
+    are scored as they are.
+    """
     _check_frame(X, caller="run_rmse_scorer")
     _check_columns_present(X, (fmt.RUN, fmt.PHASE))
     codes, runs = run_codes(X)
     sweep, _ = _phase_masks(X)
     no_sweep = np.flatnonzero(np.bincount(codes[sweep], minlength=len(runs)) == 0)
-    if no_sweep.size:
+    if 0 < no_sweep.size < len(runs):
         raise ValueError(
             f"The scored recordings hold {no_sweep.size} run(s) without {fmt.SWEEP!r} rows, "
-            f"first {runs[no_sweep[0]]!r}; every run starts with its calibration sweep, "
-            "which a held-out run needs at test time. " + CUT_RUN_HINT
+            f"first {runs[no_sweep[0]]!r}, beside runs with them; every run of these "
+            "recordings starts with its calibration sweep, which a held-out run needs at "
+            "test time. " + CUT_RUN_HINT
         )
 
 
@@ -183,7 +188,9 @@ class _RunRMSEScorer:
     """Picklable scorer: negated mean per-run RMSE of ``estimator.predict(X)``.
 
     The runs of ``X`` must be whole (each with its sweep rows): a run without
-    them is a fold that cut the run, and is refused before ``predict``.
+    them beside runs with them is a fold that cut the run, and is refused
+    before ``predict``. Recordings without any sweep row (a rig without a
+    sweep phase) are scored as they are.
     """
 
     def __init__(self, phase):
@@ -203,7 +210,10 @@ def make_run_rmse_scorer(*, phase=fmt.MOTION):
     Returns the NEGATED mean per-run RMSE (greater is better, as scikit-learn
     expects), computed on ``estimator.predict(X)``. ``X`` must hold whole runs:
     a run without its sweep rows, which a cross-validation split that cuts
-    runs (such as ``KFold``) leaves, is a ValueError naming the fix.
+    runs (such as ``KFold``) leaves, is a ValueError naming the fix, unless
+    no run of ``X`` has sweep rows (recordings of a rig without a sweep
+    phase, where a cut run cannot be told from a whole one: split them by
+    run, as the splitters of :mod:`skcath.model_selection` do).
 
     Parameters
     ----------

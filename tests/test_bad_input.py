@@ -1351,3 +1351,28 @@ def test_block_kfold_groups_of_another_length(bench):
     with pytest.raises(ValueError, match=rf"groups must hold one label per row of X "
                        rf"\({len(X)} rows\); got shape \({len(X) - 1},\)"):
         next(BlockKFold().split(X, groups=X["run"].iloc[1:]))
+
+
+# rigs without a sweep phase: a residual learner whose parameters read the sweep
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "params, reading",
+    [({}, r"GRUResidual\(frame='sweep', use_context=True\)"),
+     ({"frame": "base"}, r"GRUResidual\(use_context=True\)"),
+     ({"use_context": False}, r"GRUResidual\(frame='sweep'\)")],
+    ids=["default", "context", "sweep-frame"],
+)
+def test_learner_reading_the_sweep_given_runs_without_one(nominal, params, reading):
+    """Runs all motion: the runs, the parameters that read the sweep, and the ones that do not."""
+    Xb, y = nominal
+    motion = (Xb["phase"] == "motion").to_numpy()
+    X, y = Xb[motion].reset_index(drop=True), y[motion]
+    before = X.copy()
+    runs = ", ".join(repr(run) for run in X["run"].unique())
+    with pytest.raises(ValueError, match=rf"Run\(s\) {runs} have no 'sweep' rows; {reading} "
+                       r"reads the calibration sweep at the start of every run .*For "
+                       r"recordings without a sweep phase \(every row 'motion'\), pass "
+                       r"frame='base' and use_context=False\."):
+        _tiny_gru(**params).fit(X, y)
+    pd.testing.assert_frame_equal(X, before)
+    _tiny_gru(use_context=False, frame="base").fit(X, y)  # reads no sweep: taken

@@ -297,5 +297,8 @@ def read_recordings(
             )
         frames.append(X)
         targets.append(y)
-    # the joined table must be valid recordings as a whole, as every reader's output is
-    return check_recordings(pd.concat(frames, ignore_index=True), np.concatenate(targets, axis=0))
+    # the joined table must be valid recordings as a whole, as every reader's output is;
+    # each file's sweep was checked as its options asked (phase="motion": none)
+    return check_recordings(
+        pd.concat(frames, ignore_index=True), np.concatenate(targets, axis=0), require_sweep=False
+    )

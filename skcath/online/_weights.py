@@ -175,6 +175,9 @@ def fitted_fingerprint(backbone, residual):
         h.update(name.encode())
         h.update(tensor.detach().cpu().numpy().tobytes())
     for scaler in (residual.x_scaler_, residual.s_scaler_):
+        if scaler is None:  # no sweep statistic: fitted on runs without a sweep
+            h.update(b"none")
+            continue
         h.update(np.ascontiguousarray(scaler.mean, dtype=np.float64).tobytes())
         h.update(np.ascontiguousarray(scaler.scale, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(residual.sigma_e_, dtype=np.float64).tobytes())

@@ -35,7 +35,7 @@ from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._rate import RATE_TOLERANCE, to_model_rate, training_rate
 from .._runs import group_positions
-from .._validation import check_recordings, motor_columns
+from .._validation import check_recordings, check_sweeps, motor_columns
 from ..backbones import BACKBONE_COLUMNS
 from ..frames import FRAMES, sweep_frame
 from ..sequences import from_padded, to_padded
@@ -176,6 +176,11 @@ def _not_prepared(learner, data):
         f"the input those prepare from recordings, not {type(data).__name__}. Use "
         f"{name}.predict for tip positions (mm) or predict_residual for the residual (mm)."
     )
+
+
+#: The parameter values with which a residual learner reads each run's sweep:
+#: the sweep frame is fitted on it, the context encoded from it.
+_SWEEP_READERS = {"frame": "sweep", "use_context": True}
 
 
 def _sweep_pooling(learner):
@@ -370,9 +375,18 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             )
 
     def _check_X(self, X, y=None):
-        X, y = check_recordings(X, y)
+        X, y = check_recordings(X, y, require_sweep=False)
         check_backbone_columns(X, type(self).__name__)
         self._check_torques(X)
+        reading = [f"{key}={getattr(self, key)!r}" for key, value in _SWEEP_READERS.items()
+                   if getattr(self, key) == value]
+        if reading:
+            check_sweeps(
+                X,
+                f"{type(self).__name__}({', '.join(reading)})",
+                "For recordings without a sweep phase (every row 'motion'), pass "
+                "frame='base' and use_context=False.",
+            )
         return X, y
 
     def _n_motors(self):
@@ -462,7 +476,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         order, bounds = group_positions(codes[is_sweep], len(runs))
         sweep_rows = np.flatnonzero(is_sweep)[order]
         rotations = np.empty((len(runs), 3, 3))
-        for k in range(len(runs)):  # check_recordings ensures every run has a sweep
+        for k in range(len(runs)):  # _check_X ensures every run has a sweep (frame="sweep")
             rows = sweep_rows[bounds[k] : bounds[k + 1]]
             rotations[k] = sweep_frame(q[rows], b[rows], run=runs[k], n_motors=q.shape[1])
         return rotations[codes]
@@ -514,7 +528,12 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.x_scaler_ = Standardizer.fit(
             F.loc[is_motion, x_names].to_numpy(), weights.get("motion")
         )
-        self.s_scaler_ = Standardizer.fit(F.loc[is_sweep, s_names].to_numpy(), weights.get("sweep"))
+        # without sweep rows (a rig without a sweep phase, use_context=False) there is
+        # no sweep statistic, and no context needs one
+        self.s_scaler_ = (
+            Standardizer.fit(F.loc[is_sweep, s_names].to_numpy(), weights.get("sweep"))
+            if is_sweep.any() else None
+        )
         _, sigma = weighted_mean_std(e[finite], weights.get("e"))
         self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
 
@@ -537,7 +556,6 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         features = self.x_scaler_.transform(motion.values).astype(np.float32)
         features[~motion.mask] = 0.0
         target = (motion.target / self.sigma_e_).astype(np.float32)
-        sweep_values, sweep_lengths = self._context_input(sweep)
         step = self.window_step
         if step is None and self.window is not None:
             step = max(self.window - self.burn_in, 1)
@@ -572,6 +590,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             "group": group.astype(np.int64)[keep],
         }
         if self.use_context:
+            sweep_values, sweep_lengths = self._context_input(sweep)
             data["sweep"] = sweep_values[run_index][keep]
             data["sweep_length"] = sweep_lengths[run_index][keep]
         return data, window_target.astype(np.float32)[keep]
@@ -926,7 +945,8 @@ _COMMON_PARAMS = """
         features. Recordings without torque columns need False; with True
         they are refused with an error that names the missing columns.
     use_context : bool, default=True
-        Condition on the sweep context ``z``; without it ``v = x``.
+        Condition on the sweep context ``z``; without it ``v = x``. With
+        True every run needs its sweep rows.
     frame : {"sweep", "base"}, default="sweep"
         Frame in which the nominal tip ``b`` (a step feature) and the
         residual are expressed inside the network. ``"sweep"``: each run's
@@ -934,8 +954,11 @@ _COMMON_PARAMS = """
         nominal tip on the run's sweep rows), so that what the network
         learns does not depend on how the base sensor is mounted on a
         catheter; the predicted residual is rotated back to the base frame
-        before it is clipped and added. ``"base"``: the base frame B
-        throughout, as in the paper.
+        before it is clipped and added; every run needs its sweep rows.
+        ``"base"``: the base frame B throughout, as in the paper. With
+        ``use_context=False`` and ``frame="base"`` the learner reads no
+        sweep and takes runs without one, all rows ``"motion"``
+        (``docs/residuals.rst``, *Recordings without a sweep*).
     clip : float or None, default=25.0
         Bound of the applied residual per coordinate (mm); None disables.
     pretrained : fitted estimator of the same class, FrozenEstimator, or None
@@ -973,7 +996,8 @@ _COMMON_ATTRIBUTES = """
         The trained network (returns the normalised residual ``F``).
     x_scaler_, s_scaler_ : Standardizer
         Means and standard deviations of the step features (training motion
-        rows) and of the sweep features (training sweep rows).
+        rows) and of the sweep features (training sweep rows); ``s_scaler_``
+        is None when no training run has sweep rows.
     sigma_e_ : ndarray of shape (3,)
         Standard deviation of the training residual ``e`` per coordinate (mm)
         of the frame the network works in (see ``frame``).

@@ -38,7 +38,8 @@ class NoResidual(RecordingsMixin, RegressorMixin, BaseEstimator):
     _parameter_constraints: dict = {}
 
     def _check_X(self, X, y=None):
-        X, y = check_recordings(X, y)
+        # no sweep is read: runs without a sweep phase are taken as they are
+        X, y = check_recordings(X, y, require_sweep=False)
         check_backbone_columns(X, type(self).__name__)
         return X, y
 
