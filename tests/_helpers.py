@@ -4,7 +4,10 @@ Imported as ``from _helpers import ...`` (pytest puts the ``tests`` folder on
 ``sys.path``, as it holds no ``__init__.py``).
 """
 
+import functools
+
 import numpy as np
+import pandas as pd
 
 from skcath import motor_columns
 from skcath.datasets import make_benchmark
@@ -93,44 +96,44 @@ def benchmark_settings(settings):
     return bench.X[keep].reset_index(drop=True), np.asarray(bench.y, dtype=float)[keep]
 
 
-def with_motors(X, n_motors, *, torques=True, random_state=0):
-    """Recordings of the default two-motor benchmark turned into ``n_motors`` motors.
+@functools.lru_cache(maxsize=None)
+def _instrument_benchmark(n_motors):
+    """The one-catheter benchmark (one run per setting) of the instrument of ``n_motors`` motors."""
+    return make_benchmark(n_catheters=1, n_runs=1, n_motors=n_motors)
 
-    One motor keeps ``q1`` (and ``tau1``); three motors add ``q3 = (q1 - q2) / 2``
-    plus noise (0.5 deg) and ``tau3 = (tau1 + tau2) / 2`` plus noise (0.1),
-    deterministic for a ``random_state``, so that every motor moves and none
-    is a linear function of the others. Stands in for simulated one- and
-    three-motor instruments.
+
+def instrument(n_motors, settings, n_motion=None, *, torques=True):
+    """Recordings of the simulated instrument of ``n_motors`` motors (one catheter).
 
     Parameters
     ----------
-    X : pandas.DataFrame
-        Recordings with ``q1, q2, tau1, tau2``; never modified.
     n_motors : {1, 2, 3}
-        Motors of the result.
+        Motors of the instrument (``make_benchmark(n_motors=...)``): one
+        tendon pair in one plane, the benchmark's two pairs, or three
+        tendons at 120 degrees.
+    settings : sequence of str
+        Shaft settings kept, one run each, e.g. ``("S02", "S09")``.
+    n_motion : int or None, default=None
+        Motion rows kept at the start of each run's motion (all sweep rows
+        are kept); None keeps all.
     torques : bool, default=True
-        Keep the torque columns; False drops them all.
-    random_state : int, default=0
-        Seed of the noise of the third motor.
+        Keep the torque columns ``tau1 .. tauN``; False drops them.
 
     Returns
     -------
     X : pandas.DataFrame
-        A new frame with the columns ``q1 .. qN`` (and ``tau1 .. tauN``) in
-        place of the two motors', in the format's order.
+        The kept rows in the long format, index ``0 .. n-1``.
+    y : ndarray of shape (n_rows, 3)
+        Their tip positions (mm, float).
     """
-    rng = np.random.default_rng(random_state)
-    out = X.copy()
-    if n_motors == 3:
-        n = len(out)
-        out["q3"] = 0.5 * (out["q1"] - out["q2"]) + rng.normal(0.0, 0.5, n)
-        out["tau3"] = 0.5 * (out["tau1"] + out["tau2"]) + rng.normal(0.0, 0.1, n)
-    elif n_motors == 1:
-        out = out.drop(columns=["q2", "tau2"])
-    motors, torque_columns = motor_columns(out)
+    bench = _instrument_benchmark(n_motors)
+    X = bench.X
+    keep = X["setting"].astype(str).isin(settings).to_numpy()
+    if n_motion is not None:
+        motion = (X["phase"] == "motion").to_numpy()
+        rank = pd.Series(motion).groupby(X["run"].astype(str).to_numpy()).cumsum().to_numpy()
+        keep = keep & (~motion | (rank <= n_motion))
+    X = X[keep].reset_index(drop=True)
     if not torques:
-        out = out.drop(columns=list(torque_columns))
-        torque_columns = ()
-    first = [c for c in out.columns if c not in (*motors, *torque_columns)]
-    at = first.index("phase") + 1
-    return out[[*first[:at], *motors, *torque_columns, *first[at:]]]
+        X = X.drop(columns=list(motor_columns(X)[1]))
+    return X, np.asarray(bench.y, dtype=float)[keep]

@@ -1376,3 +1376,40 @@ def test_learner_reading_the_sweep_given_runs_without_one(nominal, params, readi
         _tiny_gru(**params).fit(X, y)
     pd.testing.assert_frame_equal(X, before)
     _tiny_gru(use_context=False, frame="base").fit(X, y)  # reads no sweep: taken
+
+
+# ---------------------------------------------------------------------------
+# the simulated instruments: the number of motors of the simulator
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("n_motors", [0, 4, 2.0, True, "3"])
+def test_simulator_refuses_another_number_of_motors(n_motors):
+    """The simulator has instruments of one, two and three motors; the parameter is named."""
+    from skcath.datasets import benchmark_catheter, simulate_run
+
+    for func, kwargs in ((make_benchmark, {"cache": False}), (simulate_run, {}),
+                         (benchmark_catheter, {"number": 1})):
+        with pytest.raises(ValueError, match=rf"The 'n_motors' parameter of {func.__name__} "
+                           r"must be an int among \{1, 2, 3\}\. Got .* instead"):
+            func(n_motors=n_motors, **kwargs)
+
+
+def test_simulator_refuses_a_unit_of_another_number_of_motors():
+    """A given three-motor unit and the default two motors: both numbers and the fix."""
+    from skcath.datasets import benchmark_catheter, simulate_run
+
+    unit = benchmark_catheter(1, n_motors=3)
+    before = unit.to_dict()
+    with pytest.raises(ValueError, match=r"catheter 'C1' has 3 motor\(s\), but n_motors=2; "
+                       r"pass n_motors=3 or a unit of 2"):
+        simulate_run(catheter=unit)
+    with pytest.raises(ValueError, match=r"catheters: unit 'C1' has 3 motor\(s\), but "
+                       r"n_motors=1; pass n_motors=3 or units of 1"):
+        make_benchmark(catheters=[unit], n_motors=1, cache=False)
+    assert joblib.hash(unit.to_dict()) == joblib.hash(before)
+
+
+def test_simulator_resweep_of_other_numbers_of_motors_is_refused():
+    """The re-sweep after a shaft change is simulated for two motors only, and says so."""
+    with pytest.raises(ValueError, match=r"resweep=True is simulated for two motors only; "
+                       r"got n_motors=3"):
+        make_benchmark(n_motors=3, shaft_change=True, resweep=True, cache=False)

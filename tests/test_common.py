@@ -20,7 +20,8 @@ from sklearn.exceptions import NotFittedError
 from sklearn.utils import get_tags
 from sklearn.utils.estimator_checks import estimator_checks_generator, parametrize_with_checks
 
-from skcath.backbones import PCCBackbone, PCCParams, PDLBackbone, pcc_tip
+from _helpers import instrument
+from skcath.backbones import PCCBackbone, PCCParams, PDLBackbone, PolynomialBackbone, pcc_tip
 from skcath.backbones._pcc import _so3_exp
 from skcath.datasets._protocol import random_walk_trajectory, sweep_trajectory
 
@@ -371,3 +372,27 @@ def test_read_only_recordings(Est, recordings):
     X_ro = pd.DataFrame(arrays, copy=False)
     assert not X_ro["q1"].to_numpy().flags.writeable
     assert_array_equal(Est().fit(X_ro).predict(X_ro), pred)
+
+
+# ---------------------------------------------------------------------------
+# the polynomial backbone on the simulated instruments of one, two and three motors
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("n_motors", [1, 2, 3])
+def test_polynomial_backbone_properties_on_each_instrument(n_motors):
+    """fit returns self and keeps the parameters; predict changes nothing; pickling
+    and refitting give the same tips; the input is unchanged."""
+    X, y = instrument(n_motors, ("S02", "S09"), 100)
+    X_before = X.copy()
+    for calibration in ("sweep", "fit"):
+        est = PolynomialBackbone(degree=2, calibration=calibration)
+        params = joblib.hash(est.get_params())
+        assert est.fit(X, y) is est
+        assert joblib.hash(est.get_params()) == params
+        assert est.n_motors_ == n_motors
+        state = joblib.hash(est.__dict__)
+        pred = est.predict(X)
+        assert joblib.hash(est.__dict__) == state
+        assert pred.shape == (len(X), 3) and np.isfinite(pred).all()
+        assert_array_equal(joblib.load(_dump(est)).predict(X), pred)
+        assert_array_equal(clone(est).fit(X, y).predict(X), pred)
+    pd.testing.assert_frame_equal(X, X_before)

@@ -10,8 +10,8 @@ GRUResidual and MLPResidual are skorch nets; two checks of the estimator API
 fail because of how skorch stores its parameters, and are listed separately.
 Where a generic check tests a property that does apply, a test in
 ``test_residuals.py`` checks the same property on long-format recordings;
-the last test here checks the main ones on recordings of one and of three
-motors.
+the last test here checks the main ones on recordings of the simulated instruments of one
+and of three motors.
 """
 
 import pickle
@@ -24,7 +24,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from sklearn.base import clone
 from sklearn.utils.estimator_checks import estimator_checks_generator, parametrize_with_checks
 
-from _helpers import benchmark_settings, with_motors
+from _helpers import instrument
 from test_common import API_CHECKS, _check_name, _input_format_failure, run_check
 from skcath.backbones import PolynomialBackbone
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
@@ -242,17 +242,13 @@ def test_expected_failures_are_real_and_for_the_stated_reason(estimator):
 # ---------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def recordings_of():
-    """``recordings_of(n)``: short recordings of ``n`` motors with a polynomial backbone, and y."""
-    X, y = benchmark_settings(("S02", "S09", "S13"))
-    motion = (X["phase"] == "motion").to_numpy()
-    rank = pd.Series(motion).groupby(X["run"].to_numpy()).cumsum().to_numpy()
-    keep = ~motion | (rank <= 120)
-    X, y = X[keep].reset_index(drop=True), y[keep]
+    """``recordings_of(n)``: short recordings of the simulated instrument of ``n`` motors
+    with a polynomial backbone, and y."""
     cache = {}
 
     def get(n_motors):
         if n_motors not in cache:
-            Xn = with_motors(X, n_motors)
+            Xn, y = instrument(n_motors, ("S02", "S09", "S13"), 120)
             cache[n_motors] = (PolynomialBackbone().fit(Xn).transform(Xn), y)
         return cache[n_motors]
 

@@ -23,7 +23,7 @@ from skcath.datasets import make_benchmark
 from skcath.online import OnlineEstimator, export, export_io
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import tiny_residual, with_motors
+from _helpers import instrument, tiny_residual
 
 def _shorten(X, settings, n_motion):
     motion = (X["phase"] == "motion").to_numpy()
@@ -234,11 +234,11 @@ def test_module_step_matches_forward(pipelines, Est, params):
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("n_motors, Est", [(1, GRUResidual), (3, GRUResidual), (3, MLPResidual)])
-def test_onnx_matches_predict_for_any_number_of_motors(data, tmp_path, n_motors, Est, dtype):
+def test_onnx_matches_predict_for_any_number_of_motors(tmp_path, n_motors, Est, dtype):
     pytest.importorskip("onnxruntime")
-    _, Xb, y, X_run, _ = data
-    train = with_motors(Xb.drop(columns=["b_x", "b_y", "b_z"]), n_motors)
-    run = with_motors(X_run, n_motors, random_state=1)
+    # the rows of ``data`` on the simulated instrument of ``n_motors`` motors
+    train, y = instrument(n_motors, ["S02", "S09"], 300)
+    run, _ = instrument(n_motors, ["S05"], 150)
     backbone = PolynomialBackbone().fit(train)
     residual = tiny_residual(Est, max_epochs=1).fit(backbone.transform(train), y)
     pipe = Pipeline([("backbone", backbone), ("residual", residual)])

@@ -45,7 +45,7 @@ from skcath.online._fast import BackboneStep
 from skcath.online._fast import BackboneStep as PCCStep, BackboneStep as PDLStep
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import tiny_residual, with_motors
+from _helpers import instrument, tiny_residual
 
 TRAIN_SETTINGS = ["S02", "S09"]
 TEST_SETTING = "S05"
@@ -799,20 +799,20 @@ def test_resweep_leaves_its_input_unchanged(pipelines, reswept):
 # one, two and three motors (the polynomial backbone), with and without torques
 # ---------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def motor_pipelines(data):
-    """Lazily fitted PolynomialBackbone pipelines on the data turned into ``n`` motors.
+def motor_pipelines():
+    """Lazily fitted PolynomialBackbone pipelines on the simulated instrument of ``n`` motors.
 
     ``motor_pipelines(n, kind, torques)`` gives the pipeline, the test run of
-    ``n`` motors and its backbone output.
+    ``n`` motors and its backbone output: the rows of ``data`` on that
+    instrument.
     """
-    X, y, X_run = data
     cache = {}
 
     def get(n_motors, kind, torques=True):
         key = (n_motors, kind, torques)
         if key not in cache:
-            Xn = with_motors(X, n_motors, torques=torques)
-            run = with_motors(X_run, n_motors, torques=torques, random_state=1)
+            Xn, y = instrument(n_motors, TRAIN_SETTINGS, N_MOTION, torques=torques)
+            run, _ = instrument(n_motors, [TEST_SETTING], 200, torques=torques)
             backbone = PolynomialBackbone().fit(Xn)
             Xb = backbone.transform(Xn)
             if kind == "none":

@@ -30,7 +30,7 @@ from skcath.persist import (
 )
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import with_motors
+from _helpers import instrument
 
 TINY = {"max_epochs": 1, "module__hidden_size": 8, "window_step": 200, "random_state": 0,
         "n_threads": 1}
@@ -473,10 +473,9 @@ def test_skops_state_of_a_cuda_learner_loads_on_the_cpu(data, fitted, tmp_path):
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("n_motors", [1, 3])
 @pytest.mark.parametrize("Est", [GRUResidual, MLPResidual])
-def test_round_trips_of_other_numbers_of_motors(data, tmp_path, n_motors, Est):
+def test_round_trips_of_other_numbers_of_motors(tmp_path, n_motors, Est):
     """joblib and skops files of a learner fitted on one or three motors predict alike."""
-    X, y = data
-    Xn = with_motors(X, n_motors)
+    Xn, y = instrument(n_motors, ["S01", "S02", "S03"])
     pipe = Pipeline([("backbone", PolynomialBackbone()), ("residual", Est(**TINY))]).fit(Xn, y)
     assert pipe["residual"].n_motors_ == n_motors
     expected = pipe.predict(Xn)

@@ -18,7 +18,6 @@ from skcath.backbones import PolynomialBackbone, PolynomialParams, polynomial_ke
 from skcath.datasets import simulate_run
 from skcath.residuals import NoResidual
 
-from _helpers import with_motors
 
 # The backbone runs no solver, so the two n_iter checks pass; every other
 # generic check fails as for the geometric backbones, on the array input.
@@ -34,16 +33,34 @@ def test_sklearn_compatible_estimator(estimator, check):
     run_check(estimator, check, EXPECTED)
 
 
-@pytest.fixture(scope="module")
-def recordings():
-    """Two simulated runs (two units, two settings) in the long format, and y."""
-    a = simulate_run(random_state=0, setting="S01", run="run-a")
-    b = simulate_run(random_state=1, setting="S09", run="run-b")
+def _two_runs(n_motors=2):
+    """Two simulated runs (two units, two settings) of ``n_motors`` motors in the long format, and y."""
+    a = simulate_run(random_state=0, setting="S01", run="run-a", n_motors=n_motors)
+    b = simulate_run(random_state=1, setting="S09", run="run-b", n_motors=n_motors)
     X = pd.concat([a.X, b.X], ignore_index=True)
     for column in ("catheter", "setting", "run", "phase"):
         X[column] = X[column].astype(str)
     X.loc[X["run"] == "run-b", "catheter"] = "C2"
     return X, np.vstack([a.y, b.y])
+
+
+@pytest.fixture(scope="module")
+def recordings():
+    """Two simulated runs (two units, two settings) in the long format, and y."""
+    return _two_runs()
+
+
+@pytest.fixture(scope="module")
+def recordings_of(recordings):
+    """``recordings_of(n)``: the two runs of ``recordings`` on the simulated instrument of ``n`` motors."""
+    cache = {2: recordings}
+
+    def get(n_motors):
+        if n_motors not in cache:
+            cache[n_motors] = _two_runs(n_motors)
+        return cache[n_motors]
+
+    return get
 
 
 def _quadratic(q):
@@ -203,9 +220,8 @@ def test_bad_input_is_a_clear_error(recordings):
 # any number of motors; the kernel and the calibration
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("n_motors", [1, 2, 3])
-def test_any_number_of_motors(recordings, n_motors):
-    X, y = recordings
-    Xn = with_motors(X, n_motors)
+def test_any_number_of_motors(recordings_of, n_motors):
+    Xn, y = recordings_of(n_motors)
     motors = [f"q{k}" for k in range(1, n_motors + 1)]
     sweep = (Xn["phase"] == "sweep").to_numpy()
     ref = Xn[list(REFERENCE_COLUMNS)].to_numpy()
@@ -233,10 +249,9 @@ def test_any_number_of_motors(recordings, n_motors):
 
 
 @pytest.mark.parametrize("n_motors", [1, 3])
-def test_kernel_is_the_fitted_polynomial(recordings, n_motors):
+def test_kernel_is_the_fitted_polynomial(recordings_of, n_motors):
     """polynomial_kernel on the packed parameters gives the scikit-learn polynomial."""
-    X, y = recordings
-    Xn = with_motors(X, n_motors)
+    Xn, y = recordings_of(n_motors)
     est = PolynomialBackbone(degree=3, calibration="fit").fit(Xn, y)
     q = Xn[[f"q{k}" for k in range(1, n_motors + 1)]].to_numpy()
     expected = est.polynomial_.predict(q)
@@ -251,12 +266,13 @@ def test_kernel_is_the_fitted_polynomial(recordings, n_motors):
         polynomial_tip(q[:, :1] if n_motors == 3 else np.c_[q, q], params)
 
 
-def test_fitted_polynomial_refuses_another_number_of_motors(recordings):
+def test_fitted_polynomial_refuses_another_number_of_motors(recordings, recordings_of):
     X, y = recordings
+    X3, _ = recordings_of(3)
     est = PolynomialBackbone(calibration="fit").fit(X, y)
     with pytest.raises(ValueError, match=r"fitted on recordings of 2 motor\(s\), but X has 3 "
                        r"\(q1, q2, q3\)"):
-        est.predict(with_motors(X, 3))
+        est.predict(X3)
     # calibrated on each sweep, the number of motors may differ from fit's
-    b = PolynomialBackbone().fit(X).predict(with_motors(X, 3))
+    b = PolynomialBackbone().fit(X).predict(X3)
     assert np.isfinite(b).all()

@@ -52,7 +52,7 @@ from skcath.residuals import _estimators
 from skcath.residuals._features import cut_windows, feature_frame, pool_sweep
 from skcath.residuals._modules import on_cpu
 
-from _helpers import tiny_residual, with_motors
+from _helpers import instrument, tiny_residual
 
 LEARNERS = [GRUResidual, MLPResidual]
 B = list(BACKBONE_COLUMNS)
@@ -1370,14 +1370,14 @@ def test_feature_names_for_any_number_of_motors():
 
 
 @pytest.fixture(scope="module")
-def motors(small):
-    """Lazily built (Xb, y) of ``small`` turned into ``n`` motors, polynomial backbone."""
-    X, _, y = small
+def motors():
+    """Lazily built (Xb, y) of the settings of ``small`` on the simulated instrument of ``n``
+    motors (shortened as ``small``), polynomial backbone."""
     cache = {}
 
     def get(n_motors, torques=True):
         if (n_motors, torques) not in cache:
-            Xn = with_motors(X, n_motors, torques=torques)
+            Xn, y = instrument(n_motors, SMALL_SETTINGS, N_MOTION, torques=torques)
             cache[n_motors, torques] = (PolynomialBackbone().fit(Xn).transform(Xn), y)
         return cache[n_motors, torques]
 
@@ -1422,12 +1422,12 @@ def test_a_third_motor_changes_the_prediction(motors):
 
 def test_partial_fit_and_pretrained_keep_the_number_of_motors(motors):
     Xb3, y = motors(3)
-    Xb1, _ = motors(1)
+    Xb1, y1 = motors(1)
     est = tiny_residual(MLPResidual).fit(Xb3, y)
     with pytest.raises(ValueError, match=r"fitted on recordings of 3 motor\(s\).*X has 1"):
-        est.partial_fit(Xb1, y)
+        est.partial_fit(Xb1, y1)
     with pytest.raises(ValueError, match=r"pretrained was fitted on recordings of 3 motor\(s\) "
                        r"but X has 1"):
-        tiny_residual(MLPResidual, pretrained=FrozenEstimator(est)).fit(Xb1, y)
+        tiny_residual(MLPResidual, pretrained=FrozenEstimator(est)).fit(Xb1, y1)
     tuned = tiny_residual(MLPResidual, pretrained=FrozenEstimator(est)).fit(Xb3, y)
     assert tuned.n_motors_ == 3

@@ -17,7 +17,7 @@ from skcath.metrics import run_rmse_scorer
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import tiny_residual, with_motors
+from _helpers import tiny_residual
 
 #: The parameters of a residual learner that reads no sweep, on a rig without torque.
 NO_SWEEP = {"use_context": False, "frame": "base", "use_torque": False}
@@ -25,13 +25,15 @@ NO_SWEEP = {"use_context": False, "frame": "base", "use_torque": False}
 
 @pytest.fixture(scope="module")
 def swept():
-    """Four simulated runs (sweep then motion) of three motors without torques, and y."""
-    runs = [simulate_run(random_state=k, setting="S03", run=f"trial-{k}") for k in range(4)]
+    """Four simulated runs (sweep then motion) of a three-motor instrument without torques, and y."""
+    runs = [
+        simulate_run(random_state=k, setting="S03", run=f"trial-{k}", n_motors=3) for k in range(4)
+    ]
     X = pd.concat([r.X for r in runs], ignore_index=True)
     for column in ("catheter", "setting", "run", "phase"):
         X[column] = X[column].astype(str)
     X["setting"] = X["run"]  # every trial its own setting: the splitters hold out trials
-    return with_motors(X, 3, torques=False), np.vstack([r.y for r in runs])
+    return X.drop(columns=["tau1", "tau2", "tau3"]), np.vstack([r.y for r in runs])
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ from ._cache import SUFFIX, as_json_value, read_bunch, read_key, write_bunch
 from ._catheter import UNIT_SPREAD, Catheter, sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
 from ._sensors import DistortionField
+from ._tendons import MotorCount, tendon_layout
 from ._simulator import (
     MAX_RATE_HZ,
     RATE_HZ,
@@ -111,10 +112,11 @@ def _draw_change(entropy, setting, settings, resweep=False):
         "number": [_Count(1)],
         "random_state": [_Count(0)],
         "unit_spread": [Interval(Real, 0, 1, closed="both")],
+        "n_motors": [MotorCount()],
     },
     prefer_skip_nested_validation=True,
 )
-def benchmark_catheter(number, random_state=0, *, unit_spread=UNIT_SPREAD):
+def benchmark_catheter(number, random_state=0, *, unit_spread=UNIT_SPREAD, n_motors=2):
     """Catheter unit ``C<number>`` of the benchmark drawn with ``random_state``.
 
     The unit that :func:`make_benchmark` simulates as ``C<number>`` (with the
@@ -130,6 +132,8 @@ def benchmark_catheter(number, random_state=0, *, unit_spread=UNIT_SPREAD):
         Seed of the benchmark.
     unit_spread : float in [0, 1], default=0.35
         See :func:`sample_catheter`.
+    n_motors : {1, 2, 3}, default=2
+        Motors of the instrument; see :func:`sample_catheter`.
 
     Returns
     -------
@@ -137,7 +141,7 @@ def benchmark_catheter(number, random_state=0, *, unit_spread=UNIT_SPREAD):
         Named ``"C<number>"``.
     """
     seed = np.random.SeedSequence([random_state, number - 1])
-    return sample_catheter(seed, f"C{number}", unit_spread=unit_spread)
+    return sample_catheter(seed, f"C{number}", unit_spread=unit_spread, n_motors=n_motors)
 
 
 def _unit_number(catheter):
@@ -200,6 +204,7 @@ def _benchmark_field(random_state=0):
         "run_variation": [dict, None],
         "catheters": [list, tuple, None],
         "rate_hz": [Interval(Real, 1, MAX_RATE_HZ, closed="both")],
+        "n_motors": [MotorCount()],
         "data_home": [str, os.PathLike, None],
         "cache": ["boolean"],
         "verbose": ["boolean"],
@@ -218,6 +223,7 @@ def make_benchmark(
     run_variation=None,
     catheters=None,
     rate_hz=RATE_HZ,
+    n_motors=2,
     data_home=None,
     cache=True,
     verbose=False,
@@ -295,6 +301,17 @@ def make_benchmark(
         with fresh per-sample noise of the same standard deviation
         (``docs/simulator.rst``, *Sample rate*). Cached separately when not
         the default.
+    n_motors : {1, 2, 3}, default=2
+        Motors of the simulated instrument (``docs/simulator.rst``,
+        *Instruments of one and three motors*): 1, one tendon pair bending in
+        one plane, with a sweep out and back along its axis to both signs
+        and a walk in an interval; 2, the benchmark's two pairs; 3, three
+        single tendons at 120 degrees with a 6-ray sweep. ``X`` has the
+        columns ``q1 .. qN`` and ``tau1 .. tauN``, and ``runs`` the drift
+        columns of every motor. The units, runs and seeds are those of the
+        two-motor benchmark; the tendons of each unit are its own. Given
+        ``catheters`` must have this number of motors. ``resweep`` is
+        simulated for two motors only. Cached separately when not 2.
     data_home : str or path-like, optional
         Cache folder; see :func:`get_data_home`.
     cache : bool, default=True
@@ -311,8 +328,9 @@ def make_benchmark(
         X : pandas.DataFrame
             Long format (``docs/data_format.rst``): ``catheter``, ``setting``,
             ``run`` (categorical), ``t`` (s), ``phase``, ``q1``, ``q2``
-            (deg), ``tau1``, ``tau2`` (N mm), ``ref_x``, ``ref_y``, ``ref_z``
-            (mm, sweep rows only).
+            (deg), ``tau1``, ``tau2`` (N mm; ``q1 .. qN`` and ``tau1 ..
+            tauN`` for ``n_motors=N``), ``ref_x``, ``ref_y``, ``ref_z`` (mm,
+            sweep rows only).
         y : ndarray of shape (n_samples, 3)
             Measured tip position in the base frame (mm).
         y_true : ndarray of shape (n_samples, 3)
@@ -327,7 +345,8 @@ def make_benchmark(
             sample, which no column of ``X`` shows: ``offset_drift1_deg``,
             ``offset_drift2_deg`` (the motor offsets less the setting's, deg)
             and ``gain_drift1``, ``gain_drift2`` (the relative tendon gains
-            less 1), each the run's jitter plus its slow drift until then.
+            less 1; one of each per motor), each the run's jitter plus its
+            slow drift until then.
         catheters : dict
             Physical parameters of each catheter unit.
         noise_floor : float
@@ -351,18 +370,22 @@ def make_benchmark(
         raise ValueError(
             "resweep=True sweeps again after the shaft change; it needs shaft_change=True."
         )
+    if resweep and n_motors != 2:
+        raise ValueError(
+            f"resweep=True is simulated for two motors only; got n_motors={n_motors}."
+        )
     given = catheters is not None
     if given:
-        catheters = _check_catheters(catheters)
+        catheters = _check_catheters(catheters, n_motors)
     else:
         catheters = [
-            benchmark_catheter(k, random_state, unit_spread=unit_spread)
+            benchmark_catheter(k, random_state, unit_spread=unit_spread, n_motors=n_motors)
             for k in range(1, int(n_catheters) + 1)
         ]
     key = _cache_key(
         len(catheters), int(n_runs), mechanism, int(random_state), shaft_change,
         resweep=resweep, unit_spread=unit_spread, run_variation=run_variation,
-        catheters=catheters if given else None, rate_hz=float(rate_hz),
+        catheters=catheters if given else None, rate_hz=float(rate_hz), n_motors=n_motors,
     )
     path = _cache_path(key, data_home) if cache else None
     bunch = None if path is None else _load_cached(path, key)
@@ -380,7 +403,7 @@ def make_benchmark(
     # as the cache gives them back: plain floats and lists
     bunch.catheters = as_json_value({c.name: c.to_dict() for c in catheters})
     bunch.key = key
-    bunch.DESCR = _describe(bunch, len(catheters), int(n_runs), float(rate_hz))
+    bunch.DESCR = _describe(bunch, len(catheters), int(n_runs), float(rate_hz), n_motors)
     if verbose:
         logger.info("generated %d runs in %.1f s", len(specs), time.perf_counter() - start)
     if path is not None:
@@ -388,8 +411,8 @@ def make_benchmark(
     return bunch
 
 
-def _check_catheters(catheters):
-    """The given catheter units as a list; each a ``Catheter`` named ``"Ck"``, names unique."""
+def _check_catheters(catheters, n_motors=2):
+    """The given catheter units as a list; each a ``Catheter`` named ``"Ck"`` of ``n_motors`` motors, names unique."""
     catheters = list(catheters)
     if not catheters:
         raise ValueError("catheters must hold at least one Catheter; got an empty sequence.")
@@ -400,6 +423,11 @@ def _check_catheters(catheters):
                 f"sample_catheter); got {type(cat).__name__}."
             )
         _unit_number(cat)
+        if cat.n_motors != n_motors:
+            raise ValueError(
+                f"catheters: unit {cat.name!r} has {cat.n_motors} motor(s), but "
+                f"n_motors={n_motors}; pass n_motors={cat.n_motors} or units of {n_motors}."
+            )
     names = [cat.name for cat in catheters]
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -408,7 +436,8 @@ def _check_catheters(catheters):
 
 
 def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
-               resweep=False, unit_spread, run_variation, catheters, rate_hz=RATE_HZ):
+               resweep=False, unit_spread, run_variation, catheters, rate_hz=RATE_HZ,
+               n_motors=2):
     """What identifies a generated benchmark; the default benchmark keeps its first key."""
     key = {
         "version": SIMULATOR_VERSION,
@@ -429,6 +458,8 @@ def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
         key["catheters"] = [cat.to_dict() for cat in catheters]
     if rate_hz != RATE_HZ:
         key["rate_hz"] = float(rate_hz)
+    if n_motors != 2:
+        key["n_motors"] = int(n_motors)
     return as_json_value(key)
 
 
@@ -471,13 +502,24 @@ def _write_cached(path, bunch):
         tmp.unlink(missing_ok=True)
 
 
-def _describe(bunch, n_catheters, n_runs, rate_hz=RATE_HZ):
+_INSTRUMENTS = {
+    1: "Instrument: one motor, one tendon pair bending in one plane.\n",
+    2: "",
+    3: "Instrument: three motors, one tendon each, at 120 degrees.\n",
+}
+_WALKERS = {1: "the motor", 2: "both motors", 3: "the three motors"}
+
+
+def _describe(bunch, n_catheters, n_runs, rate_hz=RATE_HZ, n_motors=2):
     runs = bunch.runs
+    rays = tendon_layout(n_motors).sweep_rays
     return (
         "skcath simulated catheter benchmark\n"
-        f"{n_catheters} catheters x 17 shaft settings x {n_runs} runs = {len(runs)} runs, "
+        + _INSTRUMENTS[n_motors]
+        + f"{n_catheters} catheters x 17 shaft settings x {n_runs} runs = {len(runs)} runs, "
         f"{len(bunch.X)} samples at {rate_hz:g} Hz; hysteresis mechanism: {bunch.mechanism}.\n"
-        "Each run: 8-ray outward-and-return sweep, then a 100-step random walk of both motors.\n"
+        f"Each run: {rays}-ray outward-and-return sweep, then a 100-step random walk of "
+        f"{_WALKERS[n_motors]}.\n"
         + (
             "The shaft is repositioned to another setting during each run's motion "
             "(runs: setting_after, change_time_s).\n"

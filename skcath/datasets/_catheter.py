@@ -13,12 +13,14 @@ Three levels of variation, as on a bench:
   and the slightly different base pose after re-installation.
 """
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from sklearn.utils._param_validation import Interval, validate_params
+
+from ._tendons import MotorCount, tendon_layout
 
 __all__ = [
     "Catheter",
@@ -30,8 +32,10 @@ __all__ = [
 ]
 
 #: Azimuth of the tendon pulled by a positive / negative input of each axis
-#: (rad); axis 1 bends towards +x, axis 2 towards +y.
-TENDON_AZIMUTHS = np.array([[0.0, np.pi], [np.pi / 2, 3 * np.pi / 2]])
+#: of the two-motor instrument (rad); axis 1 bends towards +x, axis 2
+#: towards +y (:func:`~skcath.datasets._tendons.tendon_layout` gives those of
+#: one and three motors).
+TENDON_AZIMUTHS = tendon_layout(2).azimuths
 
 
 @dataclass(frozen=True)
@@ -130,11 +134,13 @@ class Catheter:
         Cross-axis coupling ``(c12, c21)`` between the tendon pairs.
     rest_bend : ndarray of shape (2,)
         Resting curvature of the bending section (rad).
-    gains : ndarray of shape (2, 2)
-        Bend per effective tendon input (rad/deg) of each axis (rows) for
+    gains : ndarray of shape (n_motors, 2)
+        Bend per effective tendon input (rad/deg) of each motor (rows) for
         positive / negative inputs (columns).
-    offsets : ndarray of shape (2,)
-        Motor offsets of the two axes (degrees).
+    offsets : ndarray of shape (n_motors,)
+        Motor offsets (degrees); their number is the unit's number of
+        motors (2, the benchmark's; 1 and 3 for the instruments of
+        :func:`~skcath.datasets._tendons.tendon_layout`).
     mu : float
         Sheath friction coefficient of the capstan law ``exp(mu Theta)``.
     play_w0, play_growth_base, play_growth_scale, play_asym : float
@@ -245,6 +251,11 @@ class Catheter:
     mount_rotvec: np.ndarray
     mount_position: np.ndarray
 
+    @property
+    def n_motors(self):
+        """Number of motors of the unit (one offset each)."""
+        return len(self.offsets)
+
     def to_dict(self):
         """Parameters as a plain dict (arrays as lists)."""
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
@@ -273,10 +284,12 @@ def _toward(value, middle, spread):
         "name": [str],
         "gain_deg_per_deg": [Interval(Real, 0, None, closed="neither")],
         "unit_spread": [Interval(Real, 0, 1, closed="both")],
+        "n_motors": [MotorCount()],
     },
     prefer_skip_nested_validation=True,
 )
-def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_spread=UNIT_SPREAD):
+def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_spread=UNIT_SPREAD,
+                    n_motors=2):
     """Draw one catheter unit of the family.
 
     Parameters
@@ -297,6 +310,13 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         middle of every narrowed range. The other parameters (direction-
         dependent routing, differences between the tendons, offsets, the
         base-sensor mount) are drawn over their whole ranges in any case.
+    n_motors : {1, 2, 3}, default=2
+        Motors of the instrument (``docs/simulator.rst``, *Instruments of
+        one and three motors*): each has its own tendon gains (positive and
+        negative inputs) and offset. The unit is the two-motor unit of the
+        same ``random_state`` with these changed: one motor keeps the first
+        motor's gains and offset, a third motor's are drawn after all the
+        others; the mean gain of the unit is that of its own tendons.
 
     Returns
     -------
@@ -315,10 +335,13 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
     # between its tendons (direction-dependent, what PDL captures and PCC
     # cannot) are kept whole
     relative = 1.0 + rng.normal(0.0, 0.2, size=(2, 2))
-    mean_gain = relative.mean()
-    gains = np.deg2rad(gain_deg_per_deg) * (
-        relative - mean_gain + _toward(mean_gain, 1.0, unit_spread)
-    )
+
+    def tendon_gains(relative):
+        mean_gain = relative.mean()
+        return np.deg2rad(gain_deg_per_deg) * (
+            relative - mean_gain + _toward(mean_gain, 1.0, unit_spread)
+        )
+
     # the mounting of the base sensor is a property of the set-up, not of the
     # unit: drawn over the whole range
     tilt_axis = rng.normal(size=2)
@@ -327,7 +350,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
     mount = Rotation.from_rotvec(np.r_[tilt * tilt_axis, 0.0]) * Rotation.from_rotvec(
         [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
     )
-    return Catheter(
+    unit = Catheter(
         name=name,
         length=u(38.0, 46.0),
         tip_length=u(9.0, 12.0),
@@ -338,7 +361,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         twist=rng.normal(0.0, 0.15),
         coupling=rng.normal(0.0, 0.06, size=2),
         rest_bend=np.deg2rad(rng.normal(0.0, 2.0, size=2)),
-        gains=gains,
+        gains=tendon_gains(relative),
         offsets=rng.normal(0.0, 1.5, size=2),  # where the robot's adapter grips the knobs
         mu=u(0.10, 0.20),
         play_w0=u(3.0, 5.0),
@@ -380,6 +403,14 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         mount_position=np.array([rng.normal(0.0, 1.5), rng.normal(0.0, 1.5),
                                  -rng.uniform(6.0, 14.0)]),
     )
+    if n_motors == 2:
+        return unit
+    # another number of motors: the two-motor unit with the tendons of its
+    # motors, a third motor's drawn after everything else
+    extra = max(n_motors - 2, 0)
+    relative = np.vstack([relative, 1.0 + rng.normal(0.0, 0.2, size=(extra, 2))])[:n_motors]
+    offsets = np.concatenate([unit.offsets, rng.normal(0.0, 1.5, size=extra)])[:n_motors]
+    return replace(unit, gains=tendon_gains(relative), offsets=offsets)
 
 
 #: Share of the no-load play width that does not scale with the wrap: the
@@ -422,33 +453,41 @@ def setting_parameters(catheter, setting):
     setting : ShaftSetting
         The shaft setting (see :func:`shaft_settings`).
 
+    For a unit of one or three motors (:attr:`Catheter.n_motors`), the
+    per-axis quantities are per motor, each motor's tendon at its azimuth
+    (:func:`~skcath.datasets._tendons.tendon_layout`); a one-motor section
+    bends in one plane (no twist, coupling, routing turn or wind-up).
+
     Returns
     -------
     params : dict
-        ``gains`` (2, 2) bend per effective input of each axis and sign
-        (rad/deg); ``offsets`` (2,) motor offsets (deg); ``rest_bend`` (2,)
+        ``gains`` (n_motors, 2) bend per effective input of each motor and
+        sign (rad/deg); ``offsets`` (n_motors,) motor offsets (deg); ``rest_bend`` (2,)
         resting curvature (rad); ``coupling`` (2,) cross-axis coupling;
         ``twist`` (rad/rad); ``routing`` (6,) amplitudes and phases of the
         direction-dependent routing (rad, ``A1, zeta1, A3, zeta3, B3,
-        xi3``); ``windup`` largest wind-up lag (rad); ``w0`` (2,) no-load
-        play width per axis (deg); ``growth`` (2,) growth of the play width
-        with load (deg/deg); ``dead_zone`` (2,) dead-zone width per axis
-        (deg); ``capstan_exponent`` (2,) ``mu Theta_i`` of each axis.
+        xi3``); ``windup`` largest wind-up lag (rad); ``w0`` (n_motors,) no-load
+        play width per motor (deg); ``growth`` (n_motors,) growth of the
+        play width with load (deg/deg); ``dead_zone`` (n_motors,) dead-zone
+        width per motor (deg); ``capstan_exponent`` (n_motors,) ``mu
+        Theta_i`` of each motor.
     """
     c = catheter
+    layout = tendon_layout(c.n_motors)
+    azimuths = layout.azimuths
     theta = setting.wrap
     bvec = setting.bend_vector()
     beta = np.arctan2(bvec[1], bvec[0])
     bent = float(np.any(bvec != 0))
-    axis_wrap = theta * (1.0 + c.wrap_routing * bent * np.cos(2.0 * (beta - TENDON_AZIMUTHS[:, 0])))
+    axis_wrap = theta * (1.0 + c.wrap_routing * bent * np.cos(2.0 * (beta - azimuths[:, 0])))
     axis_capstan = 1.0 - np.exp(-c.mu * axis_wrap)
     capstan = axis_capstan.mean()
-    path = 1.0 + c.gain_shift * theta * bent * np.cos(beta - TENDON_AZIMUTHS)
+    path = 1.0 + c.gain_shift * theta * bent * np.cos(beta - azimuths)
     gains = c.gains * (1.0 - c.gain_loss * capstan) * path
     sin2, cos2 = np.sin(2 * beta) * bent, np.cos(2 * beta) * bent
-    return {
+    params = {
         "gains": gains,
-        "offsets": c.offsets + c.offset_shift * theta * bvec,
+        "offsets": c.offsets + c.offset_shift * theta * layout.per_motor(bvec),
         "rest_bend": c.rest_bend + c.rest_shift * theta * bvec,
         "coupling": c.coupling + c.coupling_shift * theta * np.array([sin2, cos2]),
         "twist": c.twist + c.twist_shift * theta * np.sin(beta) * bent,
@@ -465,4 +504,25 @@ def setting_parameters(catheter, setting):
         "growth": c.play_growth_base + c.play_growth_scale * axis_capstan,
         "dead_zone": c.dead_zone0 + c.dead_zone_growth * axis_wrap,
         "capstan_exponent": c.mu * axis_wrap,
+    }
+    return _in_plane(params) if layout.planar else params
+
+
+def _in_plane(params):
+    """The parameters of a section that bends in one plane (one motor).
+
+    Its bend vector stays on the first axis: no resting curvature across
+    the plane, no coupling into a second axis, no twist, no turn of the bend
+    plane by the routing and no torsional wind-up. The magnitude harmonic of
+    the routing stays (the two sides of the plane differ).
+    """
+    routing = params["routing"].copy()
+    routing[[0, 2]] = 0.0
+    return {
+        **params,
+        "rest_bend": params["rest_bend"] * np.array([1.0, 0.0]),
+        "coupling": np.zeros(2),
+        "twist": 0.0,
+        "routing": routing,
+        "windup": 0.0,
     }

@@ -1,19 +1,21 @@
 """Hysteresis of the tendon transmission: three interchangeable mechanisms.
 
-Each mechanism maps the motor input ``u`` (degrees, one column per bending
-axis) to the effective tendon input ``v`` that reaches the bending section,
+Each mechanism maps the motor input ``u`` (degrees, one column per motor:
+a tendon pair, or a single tendon of a three-tendon instrument) to the
+effective tendon input ``v`` that reaches the bending section,
 and reports the friction utilisation ``phi`` in [-1, 1] (+1 while the
 proximal tendon is being pulled through the sheath, -1 while it is being
 released), which sets the capstan factor of the drive torque.
 
 All mechanisms share a load-dependent width
 
-    w(u) = w0 + a (|u_i| + c |u_j|),
+    w(u) = w0 + a (|u_i| + c sum_{j != i} |u_j|),
 
-where ``c`` is the share of the other pair's load ``u_j`` that presses on
-the sheath, and ``a`` grows with the capstan wrap of the shaft (``1 - exp(-mu Theta)``),
-so loops widen with shaft bend and with load. The time loop is vectorised
-across runs and axes: arrays have shape ``(n_steps, n_runs, 2)``.
+where ``c`` is the share of the other motors' loads ``u_j`` that presses on
+the sheath (the other pair's, for two motors; none for one), and ``a`` grows
+with the capstan wrap of the shaft (``1 - exp(-mu Theta)``), so loops widen
+with shaft bend and with load. The time loop is vectorised across runs and
+motors: arrays have shape ``(n_steps, n_runs, n_motors)``.
 """
 
 import numpy as np
@@ -25,7 +27,7 @@ MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 
 def _width(u, params):
     load = np.abs(u)
-    return params["w0"] + params["growth"] * (load + params["cross_load"] * load[:, ::-1])
+    return params["w0"] + params["growth"] * (load + params["cross_load"] * (load @ params["others"]))
 
 
 #: Width multipliers of the play elements of the distributed-friction model:
@@ -142,12 +144,12 @@ def simulate_transmission(u, dt, params, mechanism="play"):
 
     Parameters
     ----------
-    u : ndarray of shape (n_steps, n_runs, 2)
-        Motor input of each bending axis (degrees), after configuration
-        offsets. Pad finished runs by repeating their last value.
+    u : ndarray of shape (n_steps, n_runs, n_motors)
+        Motor input of each motor (degrees), after configuration offsets.
+        Pad finished runs by repeating their last value.
     dt : float
         Sampling period (s).
-    params : dict of ndarray of shape (n_runs, 2)
+    params : dict of ndarray of shape (n_runs, n_motors)
         ``w0`` (deg), ``growth`` (deg/deg), ``cross_load``, ``asym`` (unloading/loading width
         ratio); ``kappa`` for ``"bouc_wen"``; ``rate_gain``, ``rate_speed``
         (deg/s), ``creep_gain``, ``creep_tau`` (s) for ``"dahl_creep"``.
@@ -156,17 +158,19 @@ def simulate_transmission(u, dt, params, mechanism="play"):
 
     Returns
     -------
-    v : ndarray of shape (n_steps, n_runs, 2)
+    v : ndarray of shape (n_steps, n_runs, n_motors)
         Effective tendon input at the bending section (degrees).
-    phi : ndarray of shape (n_steps, n_runs, 2)
+    phi : ndarray of shape (n_steps, n_runs, n_motors)
         Friction utilisation in [-1, 1].
     """
     if mechanism not in _STEPPERS:
         raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
     u = np.asarray(u, dtype=float)
-    if u.ndim != 3 or u.shape[2] != 2:
-        raise ValueError(f"u must have shape (n_steps, n_runs, 2); got {u.shape}.")
-    return _STEPPERS[mechanism](u, dt, params)
+    if u.ndim != 3 or u.shape[2] < 1:
+        raise ValueError(f"u must have shape (n_steps, n_runs, n_motors); got {u.shape}.")
+    # the loads of the other motors: a 0/1 matrix, exact for two motors
+    others = 1.0 - np.eye(u.shape[2])
+    return _STEPPERS[mechanism](u, dt, {**params, "others": others})
 
 
 def torsional_windup(u, width):
@@ -181,7 +185,7 @@ def torsional_windup(u, width):
     Parameters
     ----------
     u : ndarray of shape (n_steps, n_runs, 2)
-        Motor input (degrees).
+        The two bending inputs of the motor input (degrees).
     width : ndarray of shape (n_runs,)
         Largest azimuth lag (rad).
 

@@ -1,6 +1,8 @@
 """Motor trajectories of the recording protocol: an 8-ray sweep, then a random walk.
 
-All angles are motor angles in degrees. A trajectory is a :class:`Trajectory`:
+All angles are motor angles in degrees, or the commands of an instrument
+whose motors follow them (:mod:`skcath.datasets._tendons`): one coordinate
+for one motor, two (a bend vector) otherwise. A trajectory is a :class:`Trajectory`:
 pieces (moves and holds) whose durations are whole samples at the protocol's
 rate ``rate_hz``; it is a function of time, so it can be sampled at that rate
 or at any other (:meth:`Trajectory.sample`) and stays the same motion.
@@ -92,7 +94,7 @@ class Trajectory:
 
         Returns
         -------
-        q : ndarray of shape (n, 2)
+        q : ndarray of shape (n, n_dims)
             Motor angles (degrees) at ``t = m / sample_rate_hz``, ``m = 0 ..
             n - 1``, up to the time of the last protocol sample. At the
             protocol's own rate, exactly its samples.
@@ -103,7 +105,7 @@ class Trajectory:
         s = self._positions(rate)
         ends = np.cumsum([p.n for p in self.pieces]) - 1  # last sample of every piece
         piece = np.searchsorted(ends, s - _POSITION_TOLERANCE, side="left")
-        q = np.empty((len(s), 2))
+        q = np.empty((len(s), len(self.pieces[0].stop)))
         for k, p in enumerate(self.pieces):
             rows = np.flatnonzero(piece == k)
             if not rows.size:
@@ -150,14 +152,18 @@ def constant_speed(n, ramp_fraction=0.1):
 
 
 def _sweep_pieces(amplitude_deg, speed_deg_s, dwell_out_s, dwell_in_s, rest_s, n_rays,
-                  first_direction_deg, rate_hz):
-    """The pieces of :func:`sweep_trajectory`, durations in samples at ``rate_hz``."""
+                  first_direction_deg, rate_hz, n_dims=2):
+    """The pieces of :func:`sweep_trajectory`, durations in samples at ``rate_hz``.
+
+    In one dimension (``n_dims=1``) a ray's direction keeps its cosine: the
+    rays at 0 and 180 degrees go out to both signs.
+    """
     n_move = max(1, int(round(amplitude_deg / speed_deg_s * rate_hz)))
-    origin = np.zeros(2)
+    origin = np.zeros(n_dims)
     pieces = [_Piece(max(1, int(round(rest_s * rate_hz))), origin, origin)]
     for k in range(n_rays):
         psi = np.deg2rad(first_direction_deg + 360.0 * k / n_rays)
-        end = amplitude_deg * np.array([np.cos(psi), np.sin(psi)])
+        end = amplitude_deg * np.array([np.cos(psi), np.sin(psi)])[:n_dims]
         pieces += [
             _Piece(n_move, origin, end, _constant_speed_at),
             _Piece(int(round(dwell_out_s * rate_hz)), end, end),
@@ -233,7 +239,7 @@ def _walk_pieces(rng, n_samples, n_steps, step_std_deg, radius_deg, start):
     q = np.asarray(start, dtype=float)
     pieces = []
     for n in lengths:
-        target = _reflect_into_disk(q + rng.normal(0.0, step_std_deg, size=2), radius_deg)
+        target = _reflect_into_disk(q + rng.normal(0.0, step_std_deg, size=q.shape), radius_deg)
         pieces.append(_Piece(int(n), q, target, _min_jerk_at))
         q = target
     return pieces
@@ -279,11 +285,19 @@ def random_walk_trajectory(
     return Trajectory(tuple(pieces), 1.0).sample()[0]
 
 
-def protocol_trajectory(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0):
+def protocol_trajectory(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0,
+                        n_rays=8, n_dims=2):
     """The trajectory of one run, the 8-ray sweep then a 100-step random walk, as pieces.
 
     Draws what :func:`run_protocol` draws; its durations are whole samples at
     ``rate_hz``, and :meth:`Trajectory.sample` samples it at any rate.
+
+    ``n_rays`` and ``n_dims`` give the sweep and the walk of other
+    instruments (:mod:`skcath.datasets._tendons`): ``n_rays`` evenly spaced
+    rays from direction 0, and a walk in an interval (``n_dims=1``) or a
+    disk (2). ``n_samples_range`` is the length of a run with the 8-ray
+    sweep: the walk has the length it has after that sweep, so a sweep of
+    fewer rays gives a shorter run with the same walk.
 
     Returns
     -------
@@ -291,17 +305,20 @@ def protocol_trajectory(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), ampl
         With ``n_sweep``, the sweep's samples at ``rate_hz``.
     """
     speed = 2.4 * (1.0 + rng.uniform(-0.03, 0.03))
-    sweep = _sweep_pieces(amplitude_deg, speed, 0.0, 2.5, 3.0, 8, 0.0, rate_hz)
-    n_sweep = sum(p.n for p in sweep)
+    full = _sweep_pieces(amplitude_deg, speed, 0.0, 2.5, 3.0, 8, 0.0, rate_hz)
+    sweep = full if (n_rays, n_dims) == (8, 2) else _sweep_pieces(
+        amplitude_deg, speed, 0.0, 2.5, 3.0, n_rays, 0.0, rate_hz, n_dims
+    )
+    n_full = sum(p.n for p in full)
     n_total = int(rng.integers(n_samples_range[0], n_samples_range[1] + 1))
-    n_motion = n_total - n_sweep
+    n_motion = n_total - n_full
     if n_motion < 1000:
         raise ValueError(
             f"n_samples_range={n_samples_range} leaves {n_motion} motion samples after a "
-            f"{n_sweep}-sample sweep; expected at least 1000."
+            f"{n_full}-sample sweep; expected at least 1000."
         )
-    walk = _walk_pieces(rng, n_motion, 100, 22.0, amplitude_deg, (0.0, 0.0))
-    return Trajectory(tuple(sweep + walk), float(rate_hz), n_sweep)
+    walk = _walk_pieces(rng, n_motion, 100, 22.0, amplitude_deg, np.zeros(n_dims))
+    return Trajectory(tuple(sweep + walk), float(rate_hz), sum(p.n for p in sweep))
 
 
 def run_protocol(rng, *, rate_hz=10.0, n_samples_range=(6000, 6300), amplitude_deg=60.0,

@@ -22,6 +22,7 @@ from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
 from ._protocol import protocol_trajectory, resweep_trajectory
 from ._sensors import DistortionField, measure_pose
+from ._tendons import MotorCount, tendon_layout
 
 __all__ = [
     "MAX_RATE_HZ",
@@ -159,9 +160,9 @@ def _ou(rng, n, std, tau_s, t, size=2):
 
 
 def _ou_from(rng, last, n, std, tau_s):
-    """Continuation of an Ornstein-Uhlenbeck series of shape (n, 2) after its value ``last``."""
+    """Continuation of an Ornstein-Uhlenbeck series of shape (n, len(last)) after its value ``last``."""
     phi = np.exp(-1.0 / (RATE_HZ * tau_s))
-    white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, 2))
+    white = rng.normal(0.0, std * np.sqrt(1.0 - phi**2), size=(n, len(last)))
     out, _ = lfilter([1.0], [1.0, -phi], white, axis=0, zi=phi * np.asarray(last, dtype=float)[None])
     return out
 
@@ -171,7 +172,7 @@ def _resweep_seed(seed):
     return np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, 0), pool_size=seed.pool_size)
 
 
-def _lag(v, tau_s, rate_hz):
+def _lag(v, tau_s, rate_hz=RATE_HZ):
     """First-order lag (time constant ``tau_s``) along the time axis, starting at rest."""
     alpha = 1.0 - np.exp(-1.0 / (rate_hz * tau_s))
     out, _ = lfilter([alpha], [1.0, alpha - 1.0], v, axis=0, zi=(1.0 - alpha) * v[:1])
@@ -214,24 +215,37 @@ def _draw_run(spec, variation, rate_hz=RATE_HZ):
 
     Everything is drawn in samples at the protocol's rate (:data:`RATE_HZ`),
     so a run is the same motion with the same drifts at every ``rate_hz``.
+    The protocol is drawn in the command space of the catheter's tendon
+    layout and turned into its motor angles; the jitter and drifts are per
+    motor.
     """
-    if spec.change is not None and spec.change.resweep and rate_hz != RATE_HZ:
-        raise ValueError(
-            f"a re-sweep after the shaft change (resweep=True) is simulated at "
-            f"rate_hz={RATE_HZ:g} only; got rate_hz={rate_hz!r}."
-        )
+    layout = tendon_layout(spec.catheter.n_motors)
+    if spec.change is not None and spec.change.resweep:
+        if rate_hz != RATE_HZ:
+            raise ValueError(
+                f"a re-sweep after the shaft change (resweep=True) is simulated at "
+                f"rate_hz={RATE_HZ:g} only; got rate_hz={rate_hz!r}."
+            )
+        if layout.n_motors != 2:
+            raise ValueError(
+                f"a re-sweep after the shaft change (resweep=True) is simulated for "
+                f"two motors only; got n_motors={layout.n_motors}."
+            )
     rng = np.random.default_rng(spec.seed)
-    trajectory = protocol_trajectory(rng, rate_hz=RATE_HZ)
-    q, n_sweep = trajectory.sample(rate_hz)
-    n, n_protocol = len(q), trajectory.n_samples
+    trajectory = protocol_trajectory(
+        rng, rate_hz=RATE_HZ, n_rays=layout.sweep_rays, n_dims=layout.n_commands
+    )
+    command, n_sweep = trajectory.sample(rate_hz)
+    q = layout.motor_angles(command)
+    n, n_protocol, n_motors = len(q), trajectory.n_samples, layout.n_motors
     t = np.arange(n) / rate_hz
     cfg = setting_parameters(spec.catheter, spec.setting)
     v = variation
-    jitter = rng.normal(0.0, v["offset_jitter_deg"], 2)
-    drift = _ou(rng, n_protocol, v["offset_drift_deg"], v["offset_drift_tau_s"], t)
+    jitter = rng.normal(0.0, v["offset_jitter_deg"], n_motors)
+    drift = _ou(rng, n_protocol, v["offset_drift_deg"], v["offset_drift_tau_s"], t, n_motors)
     offsets = cfg["offsets"] + jitter + drift
-    gain_jitter = rng.normal(0.0, v["gain_jitter"], 2)
-    gain_drift = _ou(rng, n_protocol, v["gain_drift"], v["gain_drift_tau_s"], t)
+    gain_jitter = rng.normal(0.0, v["gain_jitter"], n_motors)
+    gain_drift = _ou(rng, n_protocol, v["gain_drift"], v["gain_drift_tau_s"], t, n_motors)
     gain_scale = 1.0 + gain_jitter + gain_drift
     draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets,
             "gain_scale": gain_scale, "rate_hz": rate_hz, "n_protocol": n_protocol}
@@ -280,13 +294,15 @@ def _draw_resweep(spec, draw, offset_state, gain_state, variation):
 
 
 def _transmission_params(specs, configs):
-    """Hysteresis parameters of shape (n_runs, 2) for simulate_transmission."""
-    def col(values):
-        return np.repeat(np.asarray(values, dtype=float)[:, None], 2, axis=1)
-
+    """Hysteresis parameters of shape (n_runs, n_motors) for simulate_transmission."""
     cats = [s.catheter for s in specs]
+    n_motors = cats[0].n_motors
+
+    def col(values):
+        return np.repeat(np.asarray(values, dtype=float)[:, None], n_motors, axis=1)
+
     return {
-        "w0": np.array([np.broadcast_to(c["w0"], 2) for c in configs], dtype=float),
+        "w0": np.array([np.broadcast_to(c["w0"], n_motors) for c in configs], dtype=float),
         "growth": np.array([c["growth"] for c in configs], dtype=float),
         "asym": col([c.play_asym for c in cats]),
         "cross_load": col([c.cross_load for c in cats]),
@@ -298,14 +314,31 @@ def _transmission_params(specs, configs):
     }
 
 
+def _tendon_torque(cat, e, exponent, single_tendons):
+    """Tendon torque on each motor's pulley (N mm) from its tendon input ``e`` (deg).
+
+    A pair: the pulled tendon's tension through the capstan factor less the
+    other's; a single tendon (three motors): its own tension, slack below
+    zero.
+    """
+    if single_tendons:
+        return cat.pulley_radius * np.maximum(cat.pretension + cat.stiffness * e, 0.0) * np.exp(exponent)
+    pos = (cat.pretension + cat.stiffness * np.maximum(e, 0.0)) * np.exp(exponent)
+    neg = (cat.pretension + cat.stiffness * np.maximum(-e, 0.0)) * np.exp(-exponent)
+    return cat.pulley_radius * (pos - neg)
+
+
 def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
     """Bend, tip position in the kinematic frame and tendon torque of one setting.
 
     Stateless (vectorised over samples) once the hysteresis output ``phi``,
-    the lagged effective input ``lagged`` and the wind-up are known.
+    the lagged effective input ``lagged`` and the wind-up are known. The
+    bends of the motors' tendons add up to the section's two bending inputs
+    through the catheter's tendon layout.
     """
+    layout = tendon_layout(cat.n_motors)
     e = _soft_dead_zone(lagged, cfg["dead_zone"])
-    theta = _axis_gains(e, cfg["gains"]) * gain_scale
+    theta = layout.bending_inputs(_axis_gains(e, cfg["gains"]) * gain_scale)
     c12, c21 = cfg["coupling"]
     theta = _route(theta @ np.array([[1.0, c21], [c12, 1.0]]), cfg["routing"])
     cw, sw = np.cos(windup), np.sin(windup)
@@ -317,11 +350,9 @@ def _mechanics(cat, cfg, lagged, phi, windup, gain_scale):
         split_fraction=cat.split_fraction, split_share=share,
     )
 
-    # drive torque: antagonistic tendon pair through the capstan of the shaft
+    # drive torque: the motor's tendons through the capstan of the shaft
     exponent = (cfg["capstan_exponent"] + cat.mu * a[:, None]) * phi
-    pos = (cat.pretension + cat.stiffness * np.maximum(e, 0.0)) * np.exp(exponent)
-    neg = (cat.pretension + cat.stiffness * np.maximum(-e, 0.0)) * np.exp(-exponent)
-    return a, delta, p_k, cat.pulley_radius * (pos - neg)
+    return a, delta, p_k, _tendon_torque(cat, e, exponent, layout.single_tendons)
 
 
 def _creep_and_lag(cat, v, rate_hz=RATE_HZ):
@@ -401,7 +432,7 @@ def _finish_run(spec, draw, v, phi, windup, field, dropout_rate, variation):
         a[k:], delta[k:], p_k[k:], drive[k:] = _mechanics(
             cat, draw["cfg_after"], lagged[k:], phi[k:], windup[k:], draw["gain_scale"][k:]
         )
-    noise = _noise_stream(spec, draw, (draw["n_protocol"], 2))
+    noise = _noise_stream(spec, draw, (draw["n_protocol"], cat.n_motors))
     tau = _drive_torque(cat, draw["q"], drive, noise, rate_hz)
     y_true = _mounted(cat, p_k)
     tip_pos, tip_rot, base_pos, base_rot = _poses(
@@ -441,8 +472,8 @@ def _finish_resweep(spec, draw, v, phi, windup, field, dropout_rate, variation):
 
 
 def _padded(inputs):
-    """Motor inputs of shape (n_i, 2) as one array (n_max, n_runs, 2), each padded with its last value."""
-    u = np.empty((max(len(x) for x in inputs), len(inputs), 2))
+    """Motor inputs of shape (n_i, n_motors) as one array (n_max, n_runs, n_motors), each padded with its last value."""
+    u = np.empty((max(len(x) for x in inputs), len(inputs), inputs[0].shape[1]))
     for j, x in enumerate(inputs):
         u[: len(x), j] = x
         u[len(x):, j] = x[-1]
@@ -450,9 +481,14 @@ def _padded(inputs):
 
 
 def _transmission(u, specs, configs, mechanism, rate_hz=RATE_HZ):
-    """Effective tendon input, friction utilisation and wind-up of padded inputs ``u`` sampled at ``rate_hz``."""
+    """Effective tendon input, friction utilisation and wind-up of padded inputs ``u`` sampled at ``rate_hz``.
+
+    The wind-up follows the direction of the two bending inputs of ``u``.
+    """
     v, phi = simulate_transmission(u, 1.0 / rate_hz, _transmission_params(specs, configs), mechanism)
-    return v, phi, torsional_windup(u, np.array([c["windup"] for c in configs]))
+    layout = tendon_layout(specs[0].catheter.n_motors)
+    windup = torsional_windup(layout.bending_inputs(u), np.array([c["windup"] for c in configs]))
+    return v, phi, windup
 
 
 def _splice_changes(u, v_all, phi_all, windup_all, changed, specs, draws, lengths, mechanism):
@@ -536,16 +572,13 @@ def _drift_columns(q, u, gain_scale, setting_offsets, i):
     """The run's own deviation from its setting at sample ``i``.
 
     Per-run jitter plus the slow drift until then: motor offsets (deg) and
-    relative tendon gains, per axis, as columns of the ``runs`` table.
+    relative tendon gains, per motor, as columns of the ``runs`` table
+    (``offset_drift1_deg``, ... then ``gain_drift1``, ...).
     """
     offset_drift = (q[i] - u[i]) - setting_offsets
     gain_drift = gain_scale[i] - 1.0
-    return {
-        "offset_drift1_deg": float(offset_drift[0]),
-        "offset_drift2_deg": float(offset_drift[1]),
-        "gain_drift1": float(gain_drift[0]),
-        "gain_drift2": float(gain_drift[1]),
-    }
+    columns = {f"offset_drift{k + 1}_deg": float(x) for k, x in enumerate(offset_drift)}
+    return columns | {f"gain_drift{k + 1}": float(x) for k, x in enumerate(gain_drift)}
 
 
 def _recordings(spec, draw, finished, swept, *, with_change, with_resweep):
@@ -587,6 +620,7 @@ def _run_frame(rec, catheter):
     n = len(rec.q)
     sweep = np.arange(n) < rec.n_sweep
     ref = np.where(sweep[:, None], rec.y, np.nan)
+    motors = range(rec.q.shape[1])
     return pd.DataFrame(
         {
             fmt.CATHETER: catheter.name,
@@ -594,8 +628,8 @@ def _run_frame(rec, catheter):
             fmt.RUN: rec.run,
             fmt.TIME: (rec.start + np.arange(n)) / rec.rate_hz,
             fmt.PHASE: np.where(sweep, fmt.SWEEP, fmt.MOTION),
-            "q1": rec.q[:, 0], "q2": rec.q[:, 1],
-            "tau1": rec.tau[:, 0], "tau2": rec.tau[:, 1],
+            **{f"q{k + 1}": rec.q[:, k] for k in motors},
+            **{f"tau{k + 1}": rec.tau[:, k] for k in motors},
             "ref_x": ref[:, 0], "ref_y": ref[:, 1], "ref_z": ref[:, 2],
         }
     )
@@ -661,6 +695,12 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
     if not 0.0 <= dropout_rate < 1.0:
         raise ValueError(f"dropout_rate must be in [0, 1); got {dropout_rate!r}.")
     variation = check_run_variation(run_variation)
+    n_motors = {s.catheter.n_motors for s in specs}
+    if len(n_motors) > 1:
+        raise ValueError(
+            f"specs: every run must be of an instrument with the same number of motors; "
+            f"got catheters of {sorted(n_motors)} motors."
+        )
     draws = [_draw_run(s, variation, float(rate_hz)) for s in specs]
     lengths = np.array([len(d["q"]) for d in draws])
     u = _padded([d["u"] for d in draws])
@@ -720,6 +760,7 @@ def simulate_runs(specs, *, mechanism="play", field=None, dropout_rate=0.0, run_
         "change_after_s": [Interval(Real, 0, np.inf, closed="left")],
         "resweep": ["boolean"],
         "rate_hz": [Interval(Real, 1, MAX_RATE_HZ, closed="both")],
+        "n_motors": [MotorCount()],
     },
     prefer_skip_nested_validation=True,
 )
@@ -736,6 +777,7 @@ def simulate_run(
     change_after_s=60.0,
     resweep=False,
     rate_hz=RATE_HZ,
+    n_motors=2,
 ):
     """Simulate one recording: an 8-ray sweep then a 100-step random walk, at 10 Hz by default.
 
@@ -779,6 +821,14 @@ def simulate_run(
         drifts, base pose) sampled at this rate, with fresh per-sample noise
         of the same standard deviation (``docs/simulator.rst``, *Sample
         rate*); 10 gives the runs of the benchmark.
+    n_motors : {1, 2, 3}, default=2
+        Motors of the instrument (``docs/simulator.rst``, *Instruments of
+        one and three motors*): one tendon pair bending in one plane (a
+        2-ray sweep, a walk in an interval), two pairs (the benchmark's), or
+        three single tendons at 120 degrees (a 6-ray sweep). The columns are
+        ``q1 .. qN`` and ``tau1 .. tauN``. A given ``catheter`` must have
+        this number of motors (:func:`sample_catheter`). ``resweep`` is
+        simulated for two motors only.
 
     Returns
     -------
@@ -795,7 +845,12 @@ def simulate_run(
     root = np.random.SeedSequence(_entropy(random_state))
     seeds = root.spawn(3)
     if catheter is None:
-        catheter = sample_catheter(seeds[0], "C1")
+        catheter = sample_catheter(seeds[0], "C1", n_motors=n_motors)
+    elif catheter.n_motors != n_motors:
+        raise ValueError(
+            f"catheter {catheter.name!r} has {catheter.n_motors} motor(s), but "
+            f"n_motors={n_motors}; pass n_motors={catheter.n_motors} or a unit of {n_motors}."
+        )
     setting = _lookup_setting("setting", "S01" if setting is None else setting)
     change = None
     if setting_after is not None:
