@@ -568,6 +568,27 @@ def test_read_rosbag_tip_only_without_efforts(tmp_path):
     assert_allclose(y[matched], p_wt[expected[matched]], rtol=1e-9)  # m -> mm
 
 
+def test_read_rosbag_of_one_and_three_motors(tmp_path):
+    """The config's joints q1 .. qN give the columns q1 .. qN and tau1 .. tauN, in that order."""
+    path = tmp_path / "bag"
+    t_joint, _, angles, efforts, _ = _write_bag(path, ros1=False)
+    kwargs = {"tolerance": 0.005, "catheter": "A", "setting": "s", "n_sweep": 5}
+    three = {**CONFIG, "q2": "other", "q3": "m2"}
+    X, _, _ = read_rosbag(path, three, **kwargs)
+    assert [c for c in X.columns if c[0] in "qt" and c != "t"] == [
+        "q1", "q2", "q3", "tau1", "tau2", "tau3"
+    ]
+    assert_allclose(X["q1"], np.rad2deg(angles), atol=1e-9)
+    assert_allclose(X["q2"], np.rad2deg(9.0), atol=1e-9)
+    assert_allclose(X["q3"], -np.rad2deg(angles), atol=1e-9)
+    assert_allclose(X["tau3"], 2 * efforts * 1000.0, atol=1e-9)
+    one = {k: v for k, v in CONFIG.items() if k != "q2"}
+    X1, _, _ = read_rosbag(path, one, **kwargs)
+    assert "q2" not in X1.columns and "tau2" not in X1.columns
+    assert_allclose(X1["q1"], np.rad2deg(angles), atol=1e-9)
+    assert len(X1) == len(X) == len(t_joint)
+
+
 def test_read_rosbag_errors(tmp_path):
     path = tmp_path / "bag"
     _write_bag(path, ros1=False, n_joint=10, n_pose=4)
@@ -588,6 +609,10 @@ def test_read_rosbag_errors(tmp_path):
         read_rosbag(path, {**CONFIG, "camera": "/cam"}, **kwargs)
     with pytest.raises(ValueError, match=r"config needs the key 'tip'"):
         read_rosbag(path, {k: v for k, v in CONFIG.items() if k != "tip"}, **kwargs)
+    with pytest.raises(ValueError, match=r"joints of \['q1', 'q3'\], without \['q2'\]"):
+        read_rosbag(path, {**CONFIG, "q2": None, "q3": "other"}, **kwargs)
+    with pytest.raises(ValueError, match=r"joint 'm1' for both 'q1' and 'q3'"):
+        read_rosbag(path, {**CONFIG, "q3": "m1"}, **kwargs)
 
 
 def test_read_recordings_refuses_a_run_id_in_two_files(tmp_path):

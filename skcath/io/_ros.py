@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 from sklearn.utils._param_validation import Interval, validate_params
 
-from .._format import SENSOR_POSE_COLUMNS
+from .._format import SENSOR_POSE_COLUMNS, channel_index
 from ._align import MAX_UNMATCHED, align_streams, check_alignment
 from ._convert import recording_from_table
 from ._errors import naming_the_file
@@ -23,7 +23,8 @@ from ._options import ReadingOptions
 
 __all__ = ["read_rosbag"]
 
-_CONFIG_KEYS = ("joint_states", "q1", "q2", "tip", "base")
+#: Topic keys of the config; the motors' joints are the keys ``q1 .. qN``.
+_CONFIG_KEYS = ("joint_states", "tip", "base")
 _POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped")
 _JOINT_TYPE = "sensor_msgs/msg/JointState"
 _STAMPS = ("header", "bag")
@@ -57,7 +58,8 @@ def _check_config(config):
     Returns
     -------
     config : dict
-        A new dict with every key of ``_CONFIG_KEYS`` (None where not given).
+        A new dict with every key of ``_CONFIG_KEYS`` (None where not given)
+        and the motor keys ``q1 .. qN`` given, in order.
 
     Raises
     ------
@@ -70,15 +72,24 @@ def _check_config(config):
             f"config must be a mapping with the keys {list(_CONFIG_KEYS)}; got "
             f"{type(config).__name__}."
         )
-    unknown = set(config) - set(_CONFIG_KEYS)
+    named = {k: channel_index(k)[1] for k in config if (channel_index(k) or ("",))[0] == "q"}
+    unknown = set(config) - set(_CONFIG_KEYS) - set(named)
+    motors = {k: i for k, i in named.items() if config[k] is not None}
     if unknown:
         raise ValueError(
             f"config has the unknown key(s) {sorted(unknown)}; expected keys among "
-            f"{list(_CONFIG_KEYS)}."
+            f"{list(_CONFIG_KEYS)} and the motors' joints 'q1' .. 'qN'."
         )
-    checked = {key: config.get(key) for key in _CONFIG_KEYS}
+    order = sorted(motors, key=motors.get)
+    gap = [f"q{k}" for k in range(1, len(order) + 1) if f"q{k}" not in motors]
+    if gap and order:
+        raise ValueError(
+            f"config names the joints of {order}, without {gap}: the motors are 'q1' .. 'qN' "
+            "without a gap."
+        )
+    checked = {key: config.get(key) for key in (*_CONFIG_KEYS, *order)}
     for key in ("joint_states", "q1", "tip"):
-        if checked[key] is None:
+        if checked.get(key) is None:
             raise ValueError(f"config needs the key {key!r} (see read_rosbag).")
     for key, value in checked.items():
         if value is not None and (not isinstance(value, str) or not value):
@@ -91,8 +102,12 @@ def _check_config(config):
                     f"config names the topic {topic!r} for both {other!r} and {key!r}; "
                     "each needs its own topic."
                 )
-    if checked["q2"] is not None and checked["q2"] == checked["q1"]:
-        raise ValueError(f"config names the joint {checked['q1']!r} for both 'q1' and 'q2'.")
+    for i, key in enumerate(order):
+        for other in order[:i]:
+            if checked[key] == checked[other]:
+                raise ValueError(
+                    f"config names the joint {checked[key]!r} for both {other!r} and {key!r}."
+                )
     return checked
 
 
@@ -155,15 +170,15 @@ def _read_bag(path, config, stamp):
     Returns
     -------
     motors : pandas.DataFrame
-        ``t`` (s from the first joint-state message), ``q1[, q2]``,
-        ``tau1[, tau2]`` (torques only when every message carries efforts).
+        ``t`` (s from the first joint-state message), ``q1 .. qN``,
+        ``tau1 .. tauN`` (torques only when every message carries efforts).
     poses : dict of str to pandas.DataFrame
         ``"tip"`` and possibly ``"base"``: ``t`` (s, same origin) and the raw
         pose columns.
     """
     AnyReader, Stores, get_typestore = _import_rosbags()
     store = Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.ROS2_HUMBLE
-    joints = {c: config[c] for c in ("q1", "q2") if config[c] is not None}
+    joints = {c: joint for c, joint in config.items() if c not in _CONFIG_KEYS}
     sensors = {s: config[s] for s in ("tip", "base") if config[s] is not None}
     rows = {"motors": [], **{s: [] for s in sensors}}
     with AnyReader([path], default_typestore=get_typestore(store)) as reader:
@@ -251,8 +266,9 @@ def read_rosbag(
         Which topic and joint is what:
 
         - ``"joint_states"``: topic of ``sensor_msgs/JointState`` messages;
-        - ``"q1"`` (and ``"q2"``, optional): joint names of the two motors
-          in those messages;
+        - ``"q1"`` (and ``"q2"`` .. ``"qN"``, optional, without a gap): joint
+          names of the motors in those messages, for the columns ``q1 .. qN``
+          and ``tau1 .. tauN``;
         - ``"tip"`` (and ``"base"``, optional): topics of
           ``geometry_msgs/PoseStamped`` or ``geometry_msgs/TransformStamped``
           messages with the tip and base sensor poses in the tracker frame.
