@@ -28,7 +28,7 @@ def add_reproduce_command(commands) -> None:
         "--quick",
         action="store_true",
         help="short schedule (one seed, 4 setting folds per catheter, small networks): "
-        "about three minutes on two CPU cores",
+        "about nine minutes on two CPU cores",
     )
     repro.add_argument(
         "--variants",
