@@ -1028,6 +1028,14 @@ def _tiny_gru(**params):
                           "random_state": 0, "n_threads": 1, **params})
 
 
+def _fit_is_refused(X, y, match):
+    """A tiny GRU's ``fit`` raises ValueError matching ``match`` and leaves ``X`` as it was."""
+    before = X.copy()
+    with pytest.raises(ValueError, match=match):
+        _tiny_gru().fit(X, y)
+    pd.testing.assert_frame_equal(X, before)
+
+
 @pytest.fixture(scope="module")
 def nominal(bench):
     """The bench runs with the PDL backbone's nominal tip appended, and y."""
@@ -1228,13 +1236,10 @@ def test_non_finite_third_motor_is_named():
 def test_learner_with_torques_on_recordings_without_torques(nominal):
     """use_torque=True on a rig without torque sensing names use_torque and the columns."""
     Xb, y = nominal
-    before = Xb.copy()
-    no_torque = Xb.drop(columns=["tau1", "tau2"])
-    with pytest.raises(ValueError, match=r"GRUResidual has use_torque=True and reads the drive "
-                       r"torques \['tau1', 'tau2'\] of the 2 motor\(s\), but the recordings have "
-                       r"no torque column\. Pass use_torque=False"):
-        _tiny_gru().fit(no_torque, y)
-    pd.testing.assert_frame_equal(Xb, before)
+    _fit_is_refused(Xb.drop(columns=["tau1", "tau2"]), y,
+                    r"GRUResidual has use_torque=True and reads the drive "
+                    r"torques \['tau1', 'tau2'\] of the 2 motor\(s\), but the recordings have "
+                    r"no torque column\. Pass use_torque=False")
 
 
 def test_learner_given_another_number_of_motors(nominal, streaming):
@@ -1270,6 +1275,7 @@ def test_streaming_step_with_another_number_of_channels(steppers):
     assert estimator.n_steps_ == 0
 
 
+# ---------------------------------------------------------------------------
 # sample rates: training runs at two rates, a run too slow for the model, the
 # times of a stream at another rate
 # ---------------------------------------------------------------------------
@@ -1286,13 +1292,11 @@ def test_training_runs_at_two_rates_name_the_runs(nominal):
     """A learner counts time in samples: training runs at two rates are refused by name."""
     Xb, y = nominal
     X, run = _run_slowed(Xb, 2.0)  # that run at 5 Hz
-    before = X.copy()
-    with pytest.raises(ValueError, match=rf"GRUResidual learns time in samples, so its "
-                       rf"training runs must share one sample rate; most rows are at 10 Hz, "
-                       rf"but run\(s\) '{run}' at 5 Hz differ by more than 10 % "
-                       r"\(RATE_TOLERANCE\)\. Resample them to one rate first"):
-        _tiny_gru().fit(X, y)
-    pd.testing.assert_frame_equal(X, before)
+    _fit_is_refused(X, y,
+                    rf"GRUResidual learns time in samples, so its "
+                    rf"training runs must share one sample rate; most rows are at 10 Hz, "
+                    rf"but run\(s\) '{run}' at 5 Hz differ by more than 10 % "
+                    r"\(RATE_TOLERANCE\)\. Resample them to one rate first")
 
 
 def test_run_too_slow_for_the_learner_is_refused(nominal, streaming):

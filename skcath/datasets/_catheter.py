@@ -331,25 +331,8 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
     def n(mean=0.0, sd=1.0, size=None):
         return _toward(rng.normal(mean, sd, size), mean, unit_spread)
 
-    # the four tendon gains: the unit's mean gain is narrowed, the differences
-    # between its tendons (direction-dependent, what PDL captures and PCC
-    # cannot) are kept whole
-    relative = 1.0 + rng.normal(0.0, 0.2, size=(2, 2))
-
-    def tendon_gains(relative):
-        mean_gain = relative.mean()
-        return np.deg2rad(gain_deg_per_deg) * (
-            relative - mean_gain + _toward(mean_gain, 1.0, unit_spread)
-        )
-
-    # the mounting of the base sensor is a property of the set-up, not of the
-    # unit: drawn over the whole range
-    tilt_axis = rng.normal(size=2)
-    tilt_axis /= np.linalg.norm(tilt_axis)
-    tilt = np.deg2rad(rng.uniform(25.0, 35.0))
-    mount = Rotation.from_rotvec(np.r_[tilt * tilt_axis, 0.0]) * Rotation.from_rotvec(
-        [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
-    )
+    relative = 1.0 + rng.normal(0.0, 0.2, size=(2, 2))  # the tendons' relative gains
+    mount = _sensor_mount(rng)
     unit = Catheter(
         name=name,
         length=u(38.0, 46.0),
@@ -361,7 +344,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         twist=rng.normal(0.0, 0.15),
         coupling=rng.normal(0.0, 0.06, size=2),
         rest_bend=np.deg2rad(rng.normal(0.0, 2.0, size=2)),
-        gains=tendon_gains(relative),
+        gains=_tendon_gains(relative, gain_deg_per_deg, unit_spread),
         offsets=rng.normal(0.0, 1.5, size=2),  # where the robot's adapter grips the knobs
         mu=u(0.10, 0.20),
         play_w0=u(3.0, 5.0),
@@ -410,7 +393,36 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
     extra = max(n_motors - 2, 0)
     relative = np.vstack([relative, 1.0 + rng.normal(0.0, 0.2, size=(extra, 2))])[:n_motors]
     offsets = np.concatenate([unit.offsets, rng.normal(0.0, 1.5, size=extra)])[:n_motors]
-    return replace(unit, gains=tendon_gains(relative), offsets=offsets)
+    return replace(
+        unit, gains=_tendon_gains(relative, gain_deg_per_deg, unit_spread), offsets=offsets
+    )
+
+
+def _tendon_gains(relative, gain_deg_per_deg, unit_spread):
+    """Tendon gains (rad/deg) of shape (n_motors, 2) from their relative gains.
+
+    The unit's mean gain is pulled towards the family's by ``unit_spread``;
+    the differences between its tendons (direction-dependent, what PDL
+    captures and PCC cannot) are kept whole.
+    """
+    mean_gain = relative.mean()
+    return np.deg2rad(gain_deg_per_deg) * (
+        relative - mean_gain + _toward(mean_gain, 1.0, unit_spread)
+    )
+
+
+def _sensor_mount(rng):
+    """Rotation of the base sensor's mount: a 25-35 deg tilt about a random axis, then a roll.
+
+    The mount is a property of the set-up, not of the unit: drawn over the
+    whole range whatever the unit spread.
+    """
+    tilt_axis = rng.normal(size=2)
+    tilt_axis /= np.linalg.norm(tilt_axis)
+    tilt = np.deg2rad(rng.uniform(25.0, 35.0))
+    return Rotation.from_rotvec(np.r_[tilt * tilt_axis, 0.0]) * Rotation.from_rotvec(
+        [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
+    )
 
 
 #: Share of the no-load play width that does not scale with the wrap: the

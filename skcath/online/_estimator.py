@@ -205,6 +205,11 @@ def _kept_nominal(params, q):
     return np.array([backbone(q1, q2) for q1, q2 in q.tolist()], dtype=np.float64).reshape(-1, 3)
 
 
+def _motors(channels):
+    """The motor angles ``q1 .. qN`` among the channels of a recording."""
+    return [c for c in channels if fmt.channel_index(c)[0] == "q"]
+
+
 def _motor_range(q, q_neutral, q_margin):
     """Sweep amplitude and largest accepted distance (deg) of the motor angles from neutral."""
     amplitude = float(np.hypot.reduce(q - q_neutral, axis=1).max())
@@ -226,7 +231,7 @@ def _sweep_at_rate(residual, X, nominal, run, channels):
     if at_rate is None:
         return None
     Xr = at_rate.X
-    motors = [c for c in channels if c.startswith("q")]
+    motors = _motors(channels)
     q = Xr[motors].to_numpy(dtype=np.float64)
     rotation = None
     if residual.frame == "sweep":
@@ -493,10 +498,7 @@ class OnlineEstimator(BaseEstimator):
         if residual is not None:
             self._encode_sweep(residual, X, q, calibration.nominal, run)
         self.q_neutral_ = _neutral_angles(self.backbone_params_)
-        self.q_amplitude_ = float(np.hypot.reduce(q - self.q_neutral_, axis=1).max())
-        self.q_limit_ = (
-            math.inf if self.q_margin is None else (1.0 + self.q_margin) * self.q_amplitude_
-        )
+        self.q_amplitude_, self.q_limit_ = _motor_range(q, self.q_neutral_, self.q_margin)
         self._qn = tuple(float(v) for v in self.q_neutral_)
         self._limit2 = self.q_limit_ * self.q_limit_
         self._step_inputs = _step_inputs(residual, self.rotation_, self.context_)
@@ -635,7 +637,7 @@ class OnlineEstimator(BaseEstimator):
             )
         backbone, residual = check_online_pipeline(self.pipeline)
         channels = self._channels()
-        motors = [c for c in channels if c.startswith("q")]
+        motors = _motors(channels)
         if len(motors) != 2:
             raise ValueError(
                 f"resweep finds the rays of a two-motor sweep; this estimator was started on "
