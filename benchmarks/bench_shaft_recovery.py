@@ -20,9 +20,15 @@ re-sweep), this script
        without its reference columns (new context, kept calibration);
    (c) **tracked re-sweep**: ``start`` on the tracked re-sweep (new
        calibration and context), the bound;
+   (d) **motor-only re-sweep with a recalibration**: ``resweep`` with a
+       :class:`skcath.online.MotorRecalibration` fitted on the tracked
+       sweeps of the default benchmark's three other catheters (the same
+       catheters as the model), which renews the calibration from the
+       motors as well;
 
-   and the backbone alone, with the old (stale) and the new (tracked)
-   calibration; the gap closed is ``(a - b) / (a - c)``;
+   and the backbone alone, with the old (stale), the new (tracked) and the
+   recalibrated calibration; the gap closed is ``(a - b) / (a - c)``, and
+   ``(a - d) / (a - c)`` with the recalibration;
 3. diagnoses the gap with two probes: the same network with the *new*
    calibration and the *old* context (the backbone's share of the gap), and
    how well the context ``z`` predicts the backbone's calibration (the
@@ -68,7 +74,7 @@ from sklearn.preprocessing import StandardScaler
 from skcath import persist
 from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone, pdl_tip
 from skcath.datasets import make_benchmark
-from skcath.online import OnlineEstimator
+from skcath.online import MotorRecalibration, OnlineEstimator
 from skcath.protocol import FULL, learner_input, pretrain_models, protocol_folds
 
 VARIANT = "PDL+GRU"
@@ -82,6 +88,8 @@ METHODS = {
     "GRU stale": "(a) PDL+GRU, calibration and context of the first sweep",
     "GRU motor-only": "(b) PDL+GRU, kept calibration, context of the re-sweep (resweep)",
     "GRU tracked": "(c) PDL+GRU started on the tracked re-sweep",
+    "PDL recalibrated": "backbone alone, calibration renewed from the motors (MotorRecalibration)",
+    "GRU recalibrated": "(d) PDL+GRU, resweep with the calibration renewed from the motors",
     "GRU new calibration, old context": "probe: calibration of the re-sweep, context of the first sweep",
 }
 #: Motor angles of the calibration probe: 8 directions at 30 and 60 deg.
@@ -155,7 +163,22 @@ def _new_calibration_old_context(model, pair, params):
     return model.predict(frame)[len(pair["first"]):]
 
 
-def _evaluate(models, data, engine):
+def _recalibrations(X_default, catheters):
+    """Per catheter: a MotorRecalibration fitted on the tracked sweeps of the other catheters, and its fit time."""
+    sweeps = X_default[(X_default["phase"] == "sweep").to_numpy()]
+    out = {}
+    for catheter in catheters:
+        start = time.perf_counter()
+        recalibration = MotorRecalibration().fit(sweeps[(sweeps["catheter"] != catheter).to_numpy()])
+        out[catheter] = recalibration, time.perf_counter() - start
+        print(f"recalibration for {catheter}: alpha {recalibration.alpha_:g}, held-out-catheter "
+              f"grid error {recalibration.cv_rmse_[recalibration.alpha_]:.2f} mm against a change of "
+              f"{recalibration.change_rmse_:.2f} mm ({recalibration.n_pairs_} pairs, "
+              f"{out[catheter][1]:.0f} s)", flush=True)
+    return out
+
+
+def _evaluate(models, recalibrations, data, engine):
     """Per changed run: the errors of every method, the cost of the re-sweeps, and the probe's inputs."""
     backbone = PDLBackbone().fit(data.X)
     rows, traces, sweeps = [], [], []
@@ -175,6 +198,14 @@ def _evaluate(models, data, engine):
         est.resweep(pair["resweep"].drop(columns=REFERENCE))
         row["resweep s"] = time.perf_counter() - start
         row["GRU motor-only"], err_motor = _rmse(_stream(est, pair["after"])[0], y)
+        est.start(pair["first"])
+        start = time.perf_counter()
+        est.resweep(pair["resweep"].drop(columns=REFERENCE),
+                    recalibration=recalibrations[pair["catheter"]][0])
+        row["recalibrate s"] = time.perf_counter() - start
+        tips, nominal = _stream(est, pair["after"])
+        row["GRU recalibrated"], err_recal = _rmse(tips, y)
+        row["PDL recalibrated"] = _rmse(nominal, y)[0]
         start = time.perf_counter()
         est.start(pair["resweep"])
         row["start s"] = time.perf_counter() - start
@@ -187,7 +218,8 @@ def _evaluate(models, data, engine):
         rows.append(row)
         t = pair["after"]["t"].to_numpy()
         traces.append(pd.DataFrame({"catheter": pair["catheter"], "run": pair["run"], "t": t - t[0],
-                                    "stale": err_stale, "motor-only": err_motor, "tracked": err_tracked}))
+                                    "stale": err_stale, "motor-only": err_motor, "tracked": err_tracked,
+                                    "recalibrated": err_recal}))
         for kind, z, params, setting in (("first", z_old, old_params, pair["setting"]),
                                          ("resweep", z_new, new_params, pair["setting_after"])):
             sweeps.append({"catheter": pair["catheter"], "run": pair["run"], "kind": kind,
@@ -205,8 +237,9 @@ def _error_table(errors, dev):
     for label, group in groups:
         mean = group[list(METHODS)].mean()
         a, b, c = mean["GRU stale"], mean["GRU motor-only"], mean["GRU tracked"]
+        d = mean["GRU recalibrated"]
         out.append({"catheters": label, "runs": len(group), **mean.to_dict(),
-                    "gap closed": (a - b) / (a - c)})
+                    "gap closed": (a - b) / (a - c), "gap closed, recalibrated": (a - d) / (a - c)})
     return pd.DataFrame(out)
 
 
@@ -246,8 +279,8 @@ def _figure(table, traces, dev, path):
     FigureCanvasAgg(fig)
     ax, ax_t = fig.subplots(1, 2, width_ratios=(1.2, 1.0))
     bars = ["PDL stale", "GRU stale", "GRU motor-only", "GRU new calibration, old context",
-            "GRU tracked", "PDL tracked"]
-    colours = ["#bbbbbb", "#d62728", "#ff7f0e", "#ffffff", "#2ca02c", "#7f7f7f"]
+            "GRU recalibrated", "GRU tracked", "PDL tracked"]
+    colours = ["#bbbbbb", "#d62728", "#ff7f0e", "#ffffff", "#1f77b4", "#2ca02c", "#7f7f7f"]
     width = 0.8 / len(bars)
     x = np.arange(len(table))
     for k, (name, colour) in enumerate(zip(bars, colours)):
@@ -259,7 +292,7 @@ def _figure(table, traces, dev, path):
     ax.set_ylabel("tip error after the change (mm, mean per-run RMSE)")
     ax.set_ylim(0.0, 1.35 * float(table[bars].to_numpy().max()))
     ax.legend(frameon=False, fontsize=8, ncol=3, loc="upper center")
-    names = ["stale", "motor-only", "tracked"]  # the streamed methods (a), (b), (c)
+    names = ["stale", "motor-only", "recalibrated", "tracked"]  # the streamed methods (a), (b), (d), (c)
     held = traces[traces["catheter"] != dev].copy()
     held["bin"] = (held["t"] // 10.0) * 10.0 + 5.0
     held[names] = held[names] ** 2
@@ -267,7 +300,7 @@ def _figure(table, traces, dev, path):
     curves = per_run.groupby(level="bin").mean()
     reach = per_run.groupby(level="bin").size()
     curves = curves[reach >= 0.9 * held["run"].nunique()]  # bins reached by 90 % of the runs
-    for name, colour in zip(names, [colours[1], colours[2], colours[4]]):
+    for name, colour in zip(names, [colours[1], colours[2], colours[4], colours[5]]):
         ax_t.plot(curves.index, curves[name], color=colour, label=f"GRU {name}")
     ax_t.set_xlabel("time since the end of the re-sweep (s)")
     ax_t.set_ylabel("tip error (mm, mean of run RMSE per 10 s bin)")
@@ -298,8 +331,9 @@ def main():
     X_learner = learner_input(default.X)
     t_backbone = time.perf_counter() - start
     models, t_pretrain = _pretrained(X_learner, default.y, args.seed, args.n_jobs, args.models)
+    recalibrations = _recalibrations(default.X, sorted(models))
     start = time.perf_counter()
-    errors, traces, sweeps = _evaluate(models, changed, args.engine)
+    errors, traces, sweeps = _evaluate(models, recalibrations, changed, args.engine)
     t_eval = time.perf_counter() - start
     print(
         f"\ndata {t_data:.0f} s, backbone calibration of the training runs {t_backbone:.0f} s, "
@@ -308,7 +342,10 @@ def main():
     )
     print(
         f"cost per re-sweep (s, median [max] over runs): motor-only resweep "
-        f"{errors['resweep s'].median():.2f} [{errors['resweep s'].max():.2f}], tracked start "
+        f"{errors['resweep s'].median():.2f} [{errors['resweep s'].max():.2f}], with the "
+        f"recalibration {errors['recalibrate s'].median():.2f} [{errors['recalibrate s'].max():.2f}] "
+        f"(fitting it: {np.median([t for _, t in recalibrations.values()]):.0f} s per catheter), "
+        f"tracked start "
         f"{errors['start s'].median():.2f} [{errors['start s'].max():.2f}]\n"
     )
     for name, meaning in METHODS.items():
@@ -321,6 +358,11 @@ def main():
     print(f"\nheld out, per run: gap closed median {gap.median():.2f} "
           f"[p10 {gap.quantile(0.1):.2f}, p90 {gap.quantile(0.9):.2f}]; motor-only better than "
           f"stale in {(held['GRU motor-only'] < held['GRU stale']).mean():.0%} of the runs")
+    gap = (held["GRU stale"] - held["GRU recalibrated"]) / (held["GRU stale"] - held["GRU tracked"])
+    print(f"with the recalibration: gap closed median {gap.median():.2f} "
+          f"[p10 {gap.quantile(0.1):.2f}, p90 {gap.quantile(0.9):.2f}]; better than stale in "
+          f"{(held['GRU recalibrated'] < held['GRU stale']).mean():.0%} of the runs, better than "
+          f"the motor-only re-sweep in {(held['GRU recalibrated'] < held['GRU motor-only']).mean():.0%}")
     print("\n### What the context carries about the calibration (R^2, one setting held out)\n")
     print(_probe_table(sweeps, args.dev_catheter).to_markdown(index=False, floatfmt=".2f"))
     if args.figure:

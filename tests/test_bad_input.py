@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from sklearn.exceptions import NotFittedError
 from sklearn.frozen import FrozenEstimator
 from sklearn.model_selection import KFold, cross_val_score, cross_validate
 from sklearn.pipeline import Pipeline
@@ -40,7 +41,7 @@ from skcath.exceptions import (
 from skcath.frames import tip_in_base_frame
 from skcath.io import read_recording, read_streams
 from skcath.model_selection import BlockKFold, LeaveOneSettingOut
-from skcath.online import OnlineEstimator, ShaftChangeDetector
+from skcath.online import MotorRecalibration, OnlineEstimator, ShaftChangeDetector
 from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
 from test_validation import make_recordings
@@ -1202,6 +1203,63 @@ def test_resweep_with_other_channels_is_refused(streaming):
                        r"tau3, but the sweep given to start\(\) had q1, q2, tau1, tau2"):
         est.resweep(sweep.drop(columns=REFERENCE).assign(q3=0.0, tau3=0.0))
     np.testing.assert_array_equal(est.context_, context)
+
+
+# ---------------------------------------------------------------------------
+# shaft recovery: the calibration renewed from the motors (MotorRecalibration,
+# OnlineEstimator.resweep(recalibration=...))
+# ---------------------------------------------------------------------------
+def _sweeps(X):
+    return X[(X["phase"] == "sweep").to_numpy()]
+
+
+def test_recalibration_with_one_catheter_needs_an_alpha(bench):
+    """alpha="auto" holds out one catheter at a time: one catheter is refused, naming alpha."""
+    X, _ = bench
+    with pytest.raises(ValueError, match=r'alpha="auto" holds out one catheter at a time and needs '
+                       r"at least two groups; got 1\. Give alpha as a number"):
+        MotorRecalibration().fit(_sweeps(X))
+
+
+def test_recalibration_groups_are_checked(bench):
+    """groups= of another length, or a single run: each named."""
+    X, _ = bench
+    sweeps = _sweeps(X)
+    with pytest.raises(ValueError, match=r"groups must have one value per row of X \(\d+\); got "
+                       r"shape \(2,\)"):
+        MotorRecalibration(alpha=1.0).fit(sweeps, groups=[0, 1])
+    single = sweeps[(sweeps["run"] == sweeps["run"].iloc[0]).to_numpy()]
+    with pytest.raises(ValueError, match=r"fit needs at least two runs of one group"):
+        MotorRecalibration(alpha=1.0).fit(single)
+
+
+def test_resweep_recalibration_of_another_kind_is_refused(bench, streaming):
+    """recalibration= takes a fitted MotorRecalibration; the estimator is left as it was."""
+    X, _ = bench
+    pipe, sweep, _ = streaming
+    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+    params = est.backbone_params_
+    with pytest.raises(TypeError, match=r"recalibration must be a fitted MotorRecalibration"):
+        est.resweep(sweep.drop(columns=REFERENCE), recalibration=object())
+    with pytest.raises(NotFittedError):
+        est.resweep(sweep.drop(columns=REFERENCE), recalibration=MotorRecalibration())
+    fitted = MotorRecalibration(alpha=1.0).fit(_sweeps(X))
+    with pytest.raises(ValueError, match=r"exactly one run"):
+        est.resweep(_sweeps(X).drop(columns=REFERENCE), recalibration=fitted)
+    assert est.backbone_params_ is params and est.run_ == str(sweep["run"].iloc[0])
+
+
+def test_resweep_recalibration_needs_torques(bench):
+    """Without torques there are no torque loops to renew the calibration from: named."""
+    X, _ = bench
+    sweeps = _sweeps(X)
+    fitted = MotorRecalibration(alpha=1.0).fit(sweeps)
+    sweep = sweeps[(sweeps["run"] == sweeps["run"].iloc[0]).to_numpy()].drop(columns=["tau1", "tau2"])
+    est = OnlineEstimator(Pipeline([("backbone", PDLBackbone().fit(sweep))])).start(sweep)
+    with pytest.raises(ValueError, match=r"resweep\(recalibration=\.\.\.\) reads the torque loops of "
+                       r"two motors, q1, q2 with tau1, tau2, on the sweep given to start\(\); this "
+                       r"estimator has q1, q2\. Call start\(sweep\) with a tracked sweep"):
+        est.resweep(sweep.drop(columns=REFERENCE), recalibration=fitted)
 
 
 # ---------------------------------------------------------------------------

@@ -5,11 +5,21 @@ tip from one motor sample per call, one step function on the step path
 (compiled by numba where it is installed, else run with numpy);
 :func:`export` writes the residual's stepping network as ONNX or TorchScript;
 :class:`ShaftChangeDetector` raises an alarm when the shaft configuration has
-changed since the sweep, from the motor angles and torques alone.
+changed since the sweep, from the motor angles and torques alone, and
+:class:`MotorRecalibration` renews the backbone's calibration from a re-sweep
+of the motors alone.
 """
 
 from ._change import ShaftChangeDetector
 from ._estimator import OnlineEstimator, calibrate_sweep
 from ._export import export, export_io
+from ._recalibration import MotorRecalibration
 
-__all__ = ["OnlineEstimator", "ShaftChangeDetector", "calibrate_sweep", "export", "export_io"]
+__all__ = [
+    "MotorRecalibration",
+    "OnlineEstimator",
+    "ShaftChangeDetector",
+    "calibrate_sweep",
+    "export",
+    "export_io",
+]

@@ -489,6 +489,7 @@ class OnlineEstimator(BaseEstimator):
         self.run_ = run
         self.channels_ = (*motors, *torques)
         self.backbone_params_ = calibration.params[run]
+        self._calibration_sweep = X[[*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *motors, *torques]]
         self.play_width_ = float(calibration.play_widths[run])
         played = play_operator(q, self.play_width_) if self.play_width_ > 0 else q
         self._play_start = tuple(float(v) for v in played[-1])
@@ -563,8 +564,8 @@ class OnlineEstimator(BaseEstimator):
         self.compile_seconds_ = self._packed.compile_seconds
 
     # ------------------------------------------------------------ re-sweep
-    def resweep(self, sweep):
-        """Re-encode the run's context from a sweep without the tracker; keep the calibration.
+    def resweep(self, sweep, recalibration=None):
+        """Re-encode the run's context from a sweep without the tracker; keep or renew the calibration.
 
         After the shaft has been repositioned (for example when the detector
         raises ``shaft_changed_``), a new sweep recorded with the motors
@@ -591,6 +592,15 @@ class OnlineEstimator(BaseEstimator):
         The reference tip is never read. A tracked re-sweep calibrates the
         backbone again as well: call :meth:`start` with it instead.
 
+        With a fitted ``recalibration``
+        (:class:`~skcath.online.MotorRecalibration`), the calibration is
+        renewed from the motors as well: the tip along the new sweep is
+        predicted from the kept calibration and the change of the sweep's
+        torque loops (``recalibration.recalibrate``), and the estimator is
+        started on that predicted tracked sweep, as :meth:`start` does
+        (new calibration, context, sweep frame, motor range and detector).
+        It needs the torques ``tau1``, ``tau2`` of a two-motor catheter.
+
         Parameters
         ----------
         sweep : pandas.DataFrame
@@ -598,6 +608,9 @@ class OnlineEstimator(BaseEstimator):
             format, the same rays as the sweep of :meth:`start`. The
             reference columns ``ref_x``, ``ref_y``, ``ref_z`` may be absent
             or NaN.
+        recalibration : MotorRecalibration or None, default=None
+            A fitted recalibration to renew the backbone's calibration with;
+            None keeps the calibration.
 
         Returns
         -------
@@ -623,7 +636,36 @@ class OnlineEstimator(BaseEstimator):
         tracked one.
         """
         self._check_started()
+        if recalibration is not None:
+            return self._recalibrate(sweep, recalibration)
         return self._resweep(sweep)
+
+    def _recalibrate(self, sweep, recalibration):
+        """:meth:`resweep` with a recalibration: start on the re-sweep with the predicted tip."""
+        if not hasattr(recalibration, "recalibrate"):
+            raise TypeError(
+                "recalibration must be a fitted MotorRecalibration (with a recalibrate method); "
+                f"got {type(recalibration).__name__}."
+            )
+        check_is_fitted(recalibration)
+        if self._pipeline_changed():
+            raise ValueError(
+                "resweep renews the calibration from the one taken at start(), but the pipeline "
+                "has been refit or its parameters set since start(). Call start(sweep) with a "
+                "tracked sweep."
+            )
+        kept = getattr(self, "_calibration_sweep", None)
+        channels = self._channels()
+        if kept is None or channels != (*fmt.MOTOR_COLUMNS, *fmt.TORQUE_COLUMNS):
+            raise ValueError(
+                "resweep(recalibration=...) reads the torque loops of two motors, q1, q2 with "
+                f"tau1, tau2, on the sweep given to start(); this estimator has {', '.join(channels)}"
+                + ("" if kept is not None else ", and was started or pickled without its sweep")
+                + ". Call start(sweep) with a tracked sweep."
+            )
+        X, _ = _check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels))
+        predicted = recalibration.recalibrate(kept, _without_reference(X), params=self.backbone_params_)
+        return self.start(predicted)
 
     @_fit_context(prefer_skip_nested_validation=True)
     def _resweep(self, sweep):
