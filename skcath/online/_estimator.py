@@ -261,7 +261,8 @@ class OnlineEstimator(BaseEstimator):
     reproduces ``pipeline.predict`` on the motion rows of that run (see
     *Notes* for the tolerance). After a shaft change, :meth:`resweep`
     re-encodes the context from a new sweep of the motors alone, keeping the
-    backbone's calibration; the attributes of the sweep (``run_``,
+    backbone's calibration or renewing it with a
+    :class:`~skcath.online.MotorRecalibration`; the attributes of the sweep (``run_``,
     ``rotation_``, ``context_``, ``q_neutral_``, ``q_amplitude_``,
     ``q_limit_``) are then those of the new sweep.
 
