@@ -54,6 +54,7 @@ from ..backbones import (
 )
 from ..frames import sweep_frame
 from ._change import ShaftChangeDetector
+from ._estimator import _neutral_angles
 
 #: Ridge penalties tried with ``alpha="auto"``, one catheter held out at a time.
 ALPHAS = tuple(float(a) for a in np.logspace(0, 5, 11))
@@ -74,13 +75,6 @@ def _scaler():
 def _ridge(alpha):
     """The regression of the grid change on the scaled feature change, through the origin."""
     return Ridge(alpha=alpha, fit_intercept=False)
-
-
-def _neutral(params):
-    """Neutral motor angles (deg) of a calibration."""
-    if isinstance(params, PolynomialParams):
-        return np.array(params.mean, dtype=float)
-    return np.array(params.q0 if isinstance(params, PCCParams) else params.q_neutral, dtype=float)
 
 
 def polar_grid(q_neutral, amplitude, n_directions, n_radii):
@@ -223,7 +217,7 @@ class MotorRecalibration(BaseEstimator):
 
     def _grid(self, params, q_sweep):
         """Grid centre, amplitude and motor angles for a calibration and its sweep's angles."""
-        centre = _neutral(params)
+        centre = _neutral_angles(params)
         amplitude = float(np.hypot.reduce(q_sweep - centre, axis=1).max())
         return centre, amplitude, polar_grid(centre, amplitude, self.n_directions, self.n_radii)
 
