@@ -9,6 +9,7 @@ from numpy.testing import assert_allclose
 from sklearn.pipeline import Pipeline
 from sklearn.utils._param_validation import InvalidParameterError
 
+from skcath import persist
 from skcath.backbones import PDLBackbone, pdl_tip
 from skcath.datasets import benchmark_catheter, make_benchmark, simulate_run
 from skcath.online import MotorRecalibration, OnlineEstimator, ShaftChangeDetector
@@ -169,3 +170,14 @@ def test_resweep_with_a_recalibration_starts_on_the_predicted_sweep(fitted, chan
     loaded = pickle.loads(pickle.dumps(est))
     loaded.resweep(motor_only, recalibration=fitted)
     assert_allclose(loaded.backbone_params_.coef, params.coef, atol=1e-6)
+
+
+def test_a_saved_recalibration_predicts_the_same(fitted, changed, tmp_path):
+    """persist.save / load keeps the fitted regression: the same predicted tip."""
+    first, tracked, _, _ = changed
+    path = tmp_path / "recalibration.skcath"
+    persist.save(fitted, path)
+    loaded = persist.load(path)
+    motor_only = tracked.drop(columns=REFERENCE)
+    pd.testing.assert_frame_equal(loaded.recalibrate(first, motor_only),
+                                  fitted.recalibrate(first, motor_only), check_exact=True)
