@@ -45,11 +45,12 @@ from _machine import machine_lines
 from bench_shaft_recovery import METHODS, VARIANT, _error_table, _evaluate
 from sklearn.utils import Bunch
 
-from skcath import _format as fmt
-from skcath import persist
+from skcath import ID_COLUMNS, MOTOR_COLUMNS, persist
 from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone, pdl_tip
 from skcath.datasets import make_benchmark
 from skcath.protocol import FULL, LEARNER_COLUMNS, pretrain_models, protocol_folds
+
+CATHETER, SETTING, RUN = ID_COLUMNS
 
 
 def stale_copies(X_learner, y, params, *, share=1.0, keep_original=True, random_state=None):
@@ -85,26 +86,26 @@ def stale_copies(X_learner, y, params, *, share=1.0, keep_original=True, random_
         the runs copied).
     """
     rng = np.random.default_rng(random_state)
-    ids = X_learner[list(fmt.ID_COLUMNS)].astype(str)
-    runs = ids.drop_duplicates(fmt.RUN).set_index(fmt.RUN)
+    ids = X_learner[list(ID_COLUMNS)].astype(str)
+    runs = ids.drop_duplicates(RUN).set_index(RUN)
     chosen = runs.index[rng.random(len(runs)) < share]
-    positions = pd.Series(np.arange(len(ids))).groupby(ids[fmt.RUN].to_numpy()).indices
+    positions = pd.Series(np.arange(len(ids))).groupby(ids[RUN].to_numpy()).indices
     frames, targets = [X_learner], [np.asarray(y, dtype=float)]
     for run in chosen:
-        catheter, setting = runs.loc[run, fmt.CATHETER], runs.loc[run, fmt.SETTING]
-        others = runs.index[(runs[fmt.CATHETER] == catheter) & (runs[fmt.SETTING] != setting)]
+        catheter, setting = runs.loc[run, CATHETER], runs.loc[run, SETTING]
+        others = runs.index[(runs[CATHETER] == catheter) & (runs[SETTING] != setting)]
         stale = str(rng.choice(others))
         rows = positions[run]
         copy = X_learner.iloc[rows].copy()
-        nominal = pdl_tip(copy[list(fmt.MOTOR_COLUMNS)].to_numpy(), params[stale])
+        nominal = pdl_tip(copy[list(MOTOR_COLUMNS)].to_numpy(), params[stale])
         copy[list(BACKBONE_COLUMNS)] = nominal
-        copy[fmt.RUN] = f"{run}/stale:{stale}"
+        copy[RUN] = f"{run}/stale:{stale}"
         frames.append(copy)
         targets.append(targets[0][rows])
     if not keep_original:
         frames, targets = frames[1:], targets[1:]
-    X_augmented = pd.concat([f.astype({fmt.RUN: str}) for f in frames], ignore_index=True)
-    X_augmented[fmt.RUN] = pd.Categorical(X_augmented[fmt.RUN], categories=pd.unique(X_augmented[fmt.RUN]))
+    X_augmented = pd.concat([f.astype({RUN: str}) for f in frames], ignore_index=True)
+    X_augmented[RUN] = pd.Categorical(X_augmented[RUN], categories=pd.unique(X_augmented[RUN]))
     return X_augmented, np.concatenate(targets)
 
 
@@ -128,7 +129,7 @@ def _pretrained(X_learner, y, catheters, seed, models_dir, tag):
 
 def _only(data, catheters):
     """The shaft-change benchmark restricted to the changed runs of ``catheters`` (rows keep their labels)."""
-    keep = data.runs[fmt.CATHETER].astype(str).isin(catheters)
+    keep = data.runs[CATHETER].astype(str).isin(catheters)
     return Bunch(X=data.X, y=data.y, runs=data.runs[keep])
 
 
@@ -177,7 +178,7 @@ def main():
         tag = f"stale{args.share:g}{'only' if args.stale_only else ''}-a{args.augment_seed}"
         X_learner, y = stale_copies(X_learner, y, calibration.params, share=args.share,
                                     keep_original=not args.stale_only, random_state=args.augment_seed)
-    print(f"learner input: {X_learner[fmt.RUN].nunique()} runs, {len(X_learner)} rows ({tag})")
+    print(f"learner input: {X_learner[RUN].nunique()} runs, {len(X_learner)} rows ({tag})")
     models, seconds = _pretrained(X_learner, y, args.catheters, args.seed, args.models, tag)
     changed = _only(make_benchmark(shaft_change=True, resweep=True, cache=False), args.catheters)
     start = time.perf_counter()
