@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 import torch
 from _machine import machine_lines
-from bench_shaft_recovery import METHODS, VARIANT, _error_table, _evaluate
+from bench_shaft_recovery import METHODS, VARIANT, _error_table, _evaluate, _recalibrations
 from sklearn.utils import Bunch
 
 from skcath import ID_COLUMNS, MOTOR_COLUMNS, persist
@@ -181,8 +181,9 @@ def main():
     print(f"learner input: {X_learner[RUN].nunique()} runs, {len(X_learner)} rows ({tag})")
     models, seconds = _pretrained(X_learner, y, args.catheters, args.seed, args.models, tag)
     changed = _only(make_benchmark(shaft_change=True, resweep=True, cache=False), args.catheters)
+    recalibrations = _recalibrations(default.X, args.catheters)  # the shaft-recovery bench's column (d)
     start = time.perf_counter()
-    errors, _, _ = _evaluate(models, changed, args.engine)
+    errors, _, _ = _evaluate(models, recalibrations, changed, args.engine)
     t_eval = time.perf_counter() - start
     print(f"\nbackbone calibration {t_backbone:.0f} s; pretraining (s per model): "
           + ", ".join(f"{c} {s:.0f}" for c, s in seconds.items())
@@ -194,7 +195,7 @@ def main():
     if args.plain is not None:
         plain = {c: persist.load(Path(args.plain) / f"{VARIANT}-plain-seed{args.seed}-{c}.skcath")
                  for c in args.catheters}
-        errors_plain, _, _ = _evaluate(plain, changed, args.engine)
+        errors_plain, _, _ = _evaluate(plain, recalibrations, changed, args.engine)
         _print_table(errors_plain, args.dev_catheter, args.catheters, f"{title}, plain")
         both = _two_models(errors_plain, errors)
         _print_table(both, args.dev_catheter, args.catheters,
