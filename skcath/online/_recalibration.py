@@ -54,7 +54,7 @@ from ..backbones import (
 )
 from ..frames import sweep_frame
 from ._change import ShaftChangeDetector
-from ._estimator import _neutral_angles
+from ._estimator import _motor_range, _neutral_angles
 
 #: Ridge penalties tried with ``alpha="auto"``, one catheter held out at a time.
 ALPHAS = tuple(float(a) for a in np.logspace(0, 5, 11))
@@ -216,17 +216,12 @@ class MotorRecalibration(BaseEstimator):
         return np.concatenate([detector.coef_.ravel(), detector.scale_])
 
     def _grid(self, params, q_sweep):
-        """Grid centre, amplitude and motor angles for a calibration and its sweep's angles."""
+        """The grid of a calibration and its sweep's angles: centre, amplitude, angles, tips, sweep frame."""
         centre = _neutral_angles(params)
-        amplitude = float(np.hypot.reduce(q_sweep - centre, axis=1).max())
-        return centre, amplitude, polar_grid(centre, amplitude, self.n_directions, self.n_radii)
-
-    def _change(self, params_old, q_old, params_new):
-        """The change of the calibration on the old grid, in the old sweep frame (mm)."""
-        _, _, grid = self._grid(params_old, q_old)
-        old = _tip(params_old, grid)
-        rotation = sweep_frame(grid, old)
-        return ((_tip(params_new, grid) - old) @ rotation.T).ravel()
+        amplitude = _motor_range(q_sweep, centre, None)[0]
+        grid = polar_grid(centre, amplitude, self.n_directions, self.n_radii)
+        tips = _tip(params, grid)
+        return centre, amplitude, grid, tips, sweep_frame(grid, tips)
 
     def _runs(self, X):
         """Per run of ``X``: sweep motor angles, calibration and sweep features."""
@@ -270,10 +265,12 @@ class MotorRecalibration(BaseEstimator):
         for group in pd.unique(run_group.to_numpy()):
             members = [r for r in runs if run_group[str(r)] == group]
             for a in members:
+                _, _, grid, old, rotation = self._grid(runs[a][1], runs[a][0])  # once per old run
                 for b in members:
                     if a != b:
                         features.append(runs[b][2] - runs[a][2])
-                        changes.append(self._change(runs[a][1], runs[a][0], runs[b][1]))
+                        # the change of the calibration on the old grid, in the old sweep frame (mm)
+                        changes.append(((_tip(runs[b][1], grid) - old) @ rotation.T).ravel())
                         pair_groups.append(group)
         if not features:
             raise ValueError("fit needs at least two runs of one group (catheter) to form a pair.")
@@ -333,8 +330,7 @@ class MotorRecalibration(BaseEstimator):
         check_is_fitted(self)
         q_old = sweep[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
         q_new = resweep[list(fmt.MOTOR_COLUMNS)].to_numpy(dtype=np.float64)
-        centre, amplitude, grid = self._grid(params, q_old)
-        rotation = sweep_frame(grid, _tip(params, grid))
+        centre, amplitude, _, _, rotation = self._grid(params, q_old)
         df = self._features(resweep) - self._features(sweep)
         delta = self.ridge_.predict(self.scaler_.transform(df[None]))[0].reshape(-1, 3) @ rotation
         return interpolate_polar(delta, q_new, centre, amplitude, self.n_directions, self.n_radii)
