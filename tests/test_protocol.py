@@ -8,6 +8,7 @@ original functions, so the recorded run is an ordinary protocol run.
 """
 
 import copy
+import dataclasses
 
 import numpy as np
 import pandas as pd
@@ -38,8 +39,10 @@ from skcath.protocol import (
     compute_tables,
     format_report,
     get_schedule,
+    learner_input,
     make_learner,
     methods_with_role,
+    pretrain_models,
     protocol_folds,
     run_protocol,
     write_results,
@@ -514,6 +517,52 @@ def test_sweep_adapted_methods_run_beside_the_paper_methods(data, result):
     assert ("sweep adaptation (catheter held out)", "pooled") in paired.index
     assert "Sweep adaptation" in format_report(tables)
     assert "adaptation" not in compute_tables(result, n_bootstrap=N_BOOTSTRAP, random_state=0)
+
+
+def test_adapted_methods_can_continue_the_plain_pretrained_model(data, result):
+    """With adapt_pretrain_params the adapted variant continues PDL+GRU's pretrained model.
+
+    Its numbers do not depend on whether PDL+GRU itself is reported: the
+    protocol pretrains the start it needs when the plain variant is not run.
+    """
+    X, y = data
+    base = tiny_schedule(seeds=(0,), variants=("PDL+GRU", "PDL+GRU+adapt"))
+    schedule = dataclasses.replace(base, adapt_pretrain_params={"max_epochs": 1, "lr": 3e-3})
+    both = run_protocol(X, y, schedule=schedule, exclude_settings=[EXCLUDED], n_jobs=1)
+    alone = run_protocol(X, y, schedule=dataclasses.replace(schedule, variants=("PDL+GRU+adapt",)),
+                         exclude_settings=[EXCLUDED], n_jobs=1)
+    scratch = run_protocol(X, y, schedule=base, exclude_settings=[EXCLUDED], n_jobs=1)
+    for name in ("PDL+GRU+adapt", "PDL+GRU+adapt (LOCO)"):
+        assert_array_equal(alone.predictions[name][0], both.predictions[name][0])
+        assert not np.allclose(both.predictions[name][0], scratch.predictions[name][0])
+    assert "PDL+GRU" not in alone.predictions
+    # the start was trained (and timed) even though PDL+GRU is not reported
+    stages = alone.timings.groupby(["stage", "variant"]).size()
+    assert stages["pretrain", "PDL+GRU"] == stages["pretrain", "PDL+GRU+adapt"] == 2
+    for name in ("PDL+GRU", "PDL+GRU (LOCO)"):
+        assert_array_equal(both.predictions[name][0], result.predictions[name][0])
+
+
+def test_pretrain_models_continue_from(data):
+    """continue_from starts each model from its given model's weights and statistics."""
+    X, y = data
+    X_learner = learner_input(X)
+    schedule = tiny_schedule(seeds=(0,), variants=("PDL+GRU",))
+    folds = protocol_folds(X_learner, schedule, exclude_settings=EXCLUDED).loco
+    start = pretrain_models(X_learner, y, folds, schedule).models
+    same = pretrain_models(X_learner, y, folds, dataclasses.replace(schedule, adapt_pretrain_params={"max_epochs": 0}),
+                           continue_from=start).models
+    more = pretrain_models(X_learner, y, folds, dataclasses.replace(schedule, adapt_pretrain_params={"max_epochs": 1}),
+                           continue_from=start).models
+    assert same.keys() == more.keys() == start.keys()
+    for key, model in start.items():
+        weights = model.module_.state_dict()
+        kept, moved = same[key].module_.state_dict(), more[key].module_.state_dict()
+        assert all(np.array_equal(kept[k].numpy(), weights[k].numpy()) for k in weights)
+        assert any(not np.array_equal(moved[k].numpy(), weights[k].numpy()) for k in weights)
+        assert_array_equal(more[key].sigma_e_, model.sigma_e_)
+    with pytest.raises(ValueError, match="adapt_pretrain_params"):
+        pretrain_models(X_learner, y, folds, schedule, continue_from=start)
 
 
 def test_loco_table(tables):

@@ -301,6 +301,17 @@ def _adapted(name):
     return matches[0] if matches else None
 
 
+def _unadapted(name):
+    """The method that is the adapted ``name`` without sweep adaptation."""
+    spec = METHODS[name]
+    fields = ("backbone", "learner", "use_torque", "use_context", "loco")
+    (match,) = (
+        other_name for other_name, other in METHODS.items()
+        if not other.adapt and all(getattr(other, f) == getattr(spec, f) for f in fields)
+    )
+    return match
+
+
 #: The proposed method with sweep adaptation (None if the registry has none).
 ADAPTED_METHOD = _adapted(PROPOSED_METHOD)
 

@@ -40,6 +40,7 @@ from ._methods import (
     BACKBONES,
     LOCO_METHODS,
     METHODS,
+    _unadapted,
     backbone_method,
     make_learner,
 )
@@ -243,6 +244,32 @@ def _timing(stage, key, seconds):
             "catheter": key["catheter"], "seconds": seconds}
 
 
+def _continued_params(schedule, continue_from):
+    """``params(variant, seed, catheter)``: a pretraining's learner parameters.
+
+    A model with a start in ``continue_from`` continues it with the
+    schedule's ``adapt_pretrain_params``; any other starts afresh with its
+    ``pretrain_params``.
+    """
+    fresh = {**schedule.model_params, **schedule.pretrain_params}
+    starts = {} if continue_from is None else dict(continue_from)
+    if starts and schedule.adapt_pretrain_params is None:
+        raise ValueError(
+            f"continue_from was given, but schedule {schedule.name!r} has no "
+            "adapt_pretrain_params to continue the models with; set it (a dict of "
+            "learner parameters) or pretrain from scratch without continue_from."
+        )
+
+    def params(variant, seed, catheter):
+        start = starts.get((variant, seed, catheter))
+        if start is None:
+            return fresh
+        return {**schedule.model_params, **schedule.adapt_pretrain_params,
+                "pretrained": FrozenEstimator(start)}
+
+    return params
+
+
 #: Parameters shared by pretrain_models and finetune_models.
 _STAGE_PARAMETERS = {
     "X": [pd.DataFrame],
@@ -256,9 +283,12 @@ _STAGE_PARAMETERS = {
 
 
 @validate_params(
-    {**_STAGE_PARAMETERS, "predict": ["array-like"]}, prefer_skip_nested_validation=False
+    {**_STAGE_PARAMETERS, "predict": ["array-like"], "continue_from": [Mapping, None]},
+    prefer_skip_nested_validation=False,
 )
-def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=1, verbose=False):
+def pretrain_models(
+    X, y, folds, schedule, *, variants=None, predict=(), continue_from=None, n_jobs=1, verbose=False
+):
     """Pretrain every learned method and seed on the other catheters.
 
     Parameters
@@ -275,6 +305,13 @@ def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=
         Learned methods to pretrain; None pretrains the schedule's variants.
     predict : iterable of str, default=()
         Variants whose pretrained models also predict their fold's test rows.
+    continue_from : mapping, default=None
+        Fitted models keyed by (variant, seed, catheter) of the models
+        trained here: each of these continues its model's network and
+        normalisation statistics with the schedule's
+        ``adapt_pretrain_params`` instead of starting afresh with its
+        ``pretrain_params`` (:func:`run_protocol` gives the adapted methods
+        the pretrained models of their methods without adaptation).
     n_jobs : int, default=1
         Models trained in parallel (joblib); each uses one torch thread.
     verbose : bool, default=False
@@ -290,8 +327,8 @@ def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=
     """
     schedule = get_schedule(schedule)
     variants = schedule.variants if variants is None else tuple(variants)
-    params = {**schedule.model_params, **schedule.pretrain_params}
     y = check_target(y, len(X))
+    continued = _continued_params(schedule, continue_from)
 
     def tasks():
         for fold in folds:
@@ -299,6 +336,7 @@ def pretrain_models(X, y, folds, schedule, *, variants=None, predict=(), n_jobs=
                 for seed in schedule.seeds:
                     key = {"variant": variant, "seed": seed, "catheter": fold.catheter, "test": fold.test}
                     X_tests = [X.iloc[fold.test]] if variant in predict else []
+                    params = continued(variant, seed, fold.catheter)
                     yield delayed(_pretrain)(key, params, X.iloc[fold.train], y[fold.train], X_tests)
 
     out = Bunch(models={}, predictions={}, timings=[])
@@ -401,6 +439,26 @@ def _evaluated(predictions, rows):
     return out
 
 
+def _adapted_starts(group, models, inputs, y, folds, schedule, stage, timings):
+    """The models the adapted variants of ``group`` continue, by key; None if they start afresh.
+
+    With the schedule's ``adapt_pretrain_params``, each adapted variant
+    continues the pretrained model of its method without adaptation, found
+    in ``models`` or pretrained here first (its timings join ``timings``).
+    """
+    plain = {v: _unadapted(v) for v in group if METHODS[v].adapt}
+    if schedule.adapt_pretrain_params is None or not plain:
+        return None
+    missing = sorted({p for p in plain.values() if (p, schedule.seeds[0], folds[0].catheter) not in models})
+    for variant in missing:
+        extra = pretrain_models(inputs[backbone_method(variant)], y, folds, schedule,
+                                variants=(variant,), **stage)
+        models.update(extra.models)
+        timings.extend(extra.timings)
+    return {(v, seed, fold.catheter): models[p, seed, fold.catheter]
+            for v, p in plain.items() for seed in schedule.seeds for fold in folds}
+
+
 @validate_params(
     {
         "X": "no_validation",
@@ -482,15 +540,17 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
 
     stage = dict(n_jobs=n_jobs, verbose=verbose)
     tested = {fold.catheter: fold.test for fold in folds.loco}
-    timings = []
+    timings, models = [], {}
     for backbone, X_learner in inputs.items():
         # the learned methods on this backbone's nominal tip
         group = tuple(v for v in variants if backbone_method(v) == backbone)
         if not group:
             continue
         predict = tuple(v for v in loco.values() if v in group)
+        starts = _adapted_starts(group, models, inputs, y, folds.loco, schedule, stage, timings)
         pretrained = pretrain_models(X_learner, y, folds.loco, schedule, variants=group,
-                                     predict=predict, **stage)
+                                     predict=predict, continue_from=starts, **stage)
+        models.update(pretrained.models)
         by_variant = {variant: name for name, variant in loco.items()}
         for (variant, seed, catheter), values in pretrained.predictions.items():
             predictions[by_variant[variant]][seed][tested[catheter]] = values
