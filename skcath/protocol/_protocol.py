@@ -482,6 +482,11 @@ def run_protocol(X, y, *, schedule="full", exclude_settings=None, n_jobs=1, verb
        split within ``c``, on the fold's training runs (``c``'s other
        settings), and evaluated on the fold's held-out runs.
 
+    A sweep-adapted method (``adapt=True``) under a schedule with
+    ``adapt_pretrain_params`` (``FULL``) is pretrained by continuing the
+    pretrained model of its method without adaptation, same seed and
+    catheters, which is pretrained first if it is not among the variants.
+
     The held-out runs contribute only their initial sweeps, which calibrate
     the per-run backbones (PCC and PDL, fitted on each run's own sweep) and
     feed the context encoder. Feature and target normalisation come from the
