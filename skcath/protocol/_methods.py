@@ -290,26 +290,15 @@ def _yes_no(flag):
     return "Yes" if flag else "No"
 
 
-def _adapted(name):
-    """The method that is ``name`` with sweep adaptation, or None."""
+def _adapted(name, adapt=True):
+    """The method that is ``name`` with (or, ``adapt=False``, without) sweep adaptation, or None."""
     spec = METHODS[name]
     fields = ("backbone", "learner", "use_torque", "use_context", "loco")
     matches = [
         other_name for other_name, other in METHODS.items()
-        if other.adapt and all(getattr(other, f) == getattr(spec, f) for f in fields)
+        if other.adapt == adapt and all(getattr(other, f) == getattr(spec, f) for f in fields)
     ]
     return matches[0] if matches else None
-
-
-def _unadapted(name):
-    """The method that is the adapted ``name`` without sweep adaptation."""
-    spec = METHODS[name]
-    fields = ("backbone", "learner", "use_torque", "use_context", "loco")
-    (match,) = (
-        other_name for other_name, other in METHODS.items()
-        if not other.adapt and all(getattr(other, f) == getattr(spec, f) for f in fields)
-    )
-    return match
 
 
 #: The proposed method with sweep adaptation (None if the registry has none).

@@ -40,7 +40,7 @@ from ._methods import (
     BACKBONES,
     LOCO_METHODS,
     METHODS,
-    _unadapted,
+    _adapted,
     backbone_method,
     make_learner,
 )
@@ -446,11 +446,10 @@ def _adapted_starts(group, models, inputs, y, folds, schedule, stage, timings):
     continues the pretrained model of its method without adaptation, found
     in ``models`` or pretrained here first (its timings join ``timings``).
     """
-    plain = {v: _unadapted(v) for v in group if METHODS[v].adapt}
+    plain = {v: _adapted(v, adapt=False) for v in group if METHODS[v].adapt}
     if schedule.adapt_pretrain_params is None or not plain:
         return None
-    missing = sorted({p for p in plain.values() if (p, schedule.seeds[0], folds[0].catheter) not in models})
-    for variant in missing:
+    for variant in sorted(set(plain.values()) - {key[0] for key in models}):
         extra = pretrain_models(inputs[backbone_method(variant)], y, folds, schedule,
                                 variants=(variant,), **stage)
         models.update(extra.models)
