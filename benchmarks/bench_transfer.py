@@ -68,6 +68,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from _finetuned import within_predictions
 from _machine import machine_lines
 
 from skcath.backbones import BACKBONE_COLUMNS, PDLBackbone
@@ -78,7 +79,6 @@ from skcath.protocol import (
     LEARNER_COLUMNS,
     QUICK,
     Fold,
-    finetune_models,
     learner_input,
     pretrain_models,
     protocol_folds,
@@ -185,12 +185,9 @@ def finetune_within(inputs, y, X, folds, schedule, models, args, name, clock):
     start, model_s, records = time.perf_counter(), 0.0, []
     k = len(folds.loco) - 1
     for variant, (_, backbone) in LEARNED.items():
-        out = finetune_models(inputs[backbone], y, folds.within, schedule, models[variant],
-                              variants=[variant], n_jobs=args.n_jobs)
-        model_s += sum(t["seconds"] for t in out.timings)
-        pred = np.full((len(X), 3), np.nan)
-        for (_, _, number), values in out.predictions.items():
-            pred[folds.within[number].test] = values[0]
+        pred, timings = within_predictions(inputs[backbone], y, folds, schedule, models[variant], variant,
+                                           args.n_jobs)
+        model_s += sum(t["seconds"] for t in timings)
         for fold in folds.loco:
             records += run_scores(y, pred, X, fold.test, benchmark=name, method=variant, k=k,
                                   training="within")

@@ -54,13 +54,13 @@ from skcath.protocol import (
     ADAPTED_METHOD,
     FULL,
     PROPOSED_METHOD,
-    finetune_models,
     learner_input,
     pretrain_models,
     protocol_folds,
 )
 
 sys.path.insert(0, str(Path(__file__).parent))
+from _finetuned import within_predictions  # noqa: E402
 from _machine import machine_lines  # noqa: E402
 
 CATHETER = "C1"
@@ -82,10 +82,7 @@ def _scores(X, y, folds, schedule, variant, pretrained, n_jobs):
     test = folds.loco[0].test
     model = pretrained[variant, schedule.seeds[0], CATHETER]
     loco = mean_per_run_rmse(y[test], model.predict(X.iloc[test]), X.iloc[test])
-    tuned = finetune_models(X, y, folds.within, schedule, pretrained, variants=(variant,), n_jobs=n_jobs)
-    pred = np.full((len(X), 3), np.nan)
-    for (_, _, number), values in tuned.predictions.items():
-        pred[folds.within[number].test] = values[0]
+    pred, _ = within_predictions(X, y, folds, schedule, pretrained, variant, n_jobs)
     return loco, mean_per_run_rmse(y[test], pred[test], X.iloc[test])
 
 

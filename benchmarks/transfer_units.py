@@ -45,13 +45,13 @@ from skcath.protocol import (
     FULL,
     PROPOSED_METHOD,
     Fold,
-    finetune_models,
     learner_input,
     pretrain_models,
     protocol_folds,
 )
 
 sys.path.insert(0, str(Path(__file__).parent))
+from _finetuned import within_predictions  # noqa: E402
 from _machine import machine_lines  # noqa: E402
 
 def training_folds(X, held_out, test, units):
@@ -76,14 +76,10 @@ def units_label(names):
 
 def within_scores(X, y, folds, schedule, variant, model, n_jobs):
     """The held-out catheter's RMSE after fine-tuning ``model`` on each setting-held-out fold."""
-    catheter = folds.loco[0].catheter
-    tuned = finetune_models(X, y, folds.within, schedule, {(variant, schedule.seeds[0], catheter): model},
-                            variants=(variant,), n_jobs=n_jobs)
-    pred = np.full((len(X), 3), np.nan)
-    for (_, _, number), values in tuned.predictions.items():
-        pred[folds.within[number].test] = values[0]
-    test = folds.loco[0].test
-    return mean_per_run_rmse(y[test], pred[test], X.iloc[test]), sum(t["seconds"] for t in tuned.timings)
+    catheter, test = folds.loco[0].catheter, folds.loco[0].test
+    pred, timings = within_predictions(X, y, folds, schedule, {(variant, schedule.seeds[0], catheter): model},
+                                       variant, n_jobs)
+    return mean_per_run_rmse(y[test], pred[test], X.iloc[test]), sum(t["seconds"] for t in timings)
 
 
 def main():
