@@ -11,7 +11,7 @@ each of the 17 shaft settings recorded once), follows one run with a bent
 shaft from the motor angles to the tip position, and measures the hysteresis
 of the tendon transmission and how it changes with the shaft bend. The
 physics behind the data is described on the :doc:`simulator page
-</simulator>`.
+</studies/simulator>`.
 """
 
 # Authors: The skcath developers
