@@ -1,7 +1,7 @@
 """Seconds per pretraining epoch of PDL+GRU on this machine, and what the full protocol's pretraining costs.
 
 The full protocol's wall time (``python -m skcath reproduce``) is almost all
-training (``docs/results.rst``, *Where the time goes*), and training time
+training (``docs/studies/results.rst``, *Where the time goes*), and training time
 follows the speed of the machine on the day. This script times the
 protocol's pretraining of PDL+GRU for one held-out catheter (the full
 network, one torch thread, learning rate :math:`10^{-2}`, on the default

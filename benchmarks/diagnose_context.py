@@ -1,7 +1,7 @@
 """What can the sweep context carry, and what would knowing the shaft setting gain?
 
 A diagnosis of the simulated benchmark and of the sweep-context encoder (the
-numbers are in ``docs/diagnosis.rst``), in these parts:
+numbers are in ``docs/studies/diagnosis.rst``), in these parts:
 
 1. **Sweep probe.** Can the shaft setting be read off a run's sweep from the
    motor side alone? Hand-made sweep features (the mean torques of each ray

@@ -4,8 +4,7 @@ Every case starts from a small valid recording, breaks it in one way and
 checks where it is caught (``check_recordings``, a backbone calibrating on the
 sweep, ``read_recording`` or ``tip_in_base_frame``), that the message names
 the column or run and says what was expected, and that the input is left
-unchanged. The table of these cases is in ``docs/data_format.rst``
-("Bad input: what is checked").
+unchanged. The table of these cases is in ``docs/bad_input.rst``.
 """
 
 import copy

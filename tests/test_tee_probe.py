@@ -1,6 +1,6 @@
 """The TEE-probe workflow on the package: recordings of a one-motor probe.
 
-``docs/real_data.rst`` reads the recordings of a robotised TEE probe with
+``docs/studies/real_data.rst`` reads the recordings of a robotised TEE probe with
 :func:`skcath.io.read_recording` and estimates the tip with
 :class:`skcath.backbones.PolynomialBackbone` (fitted once on the training
 acquisition) followed by a residual learner. These tests run the same calls

@@ -10,8 +10,8 @@ a 100-step random walk. This example loads a small benchmark (two catheters,
 each of the 17 shaft settings recorded once), follows one run with a bent
 shaft from the motor angles to the tip position, and measures the hysteresis
 of the tendon transmission and how it changes with the shaft bend. The
-physics behind the data is described on the :doc:`simulator page
-</simulator>`.
+options are listed in :doc:`/simulated_benchmark`, and the physics behind the
+data is described in the :doc:`simulator study </studies/simulator>`.
 """
 
 # Authors: The skcath developers

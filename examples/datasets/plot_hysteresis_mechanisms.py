@@ -12,7 +12,7 @@ interchangeable models of this transmission hysteresis, selected with the
 catheter, in the same shaft setting and with the same motor trajectory and
 noise, under each mechanism, and compares the hysteresis loops of a sweep and
 the tip motion during the random walk. The equations are on the
-:doc:`simulator page </simulator>`.
+:doc:`simulator page </studies/simulator>`.
 """
 
 # Authors: The skcath developers

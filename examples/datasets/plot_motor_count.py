@@ -13,7 +13,7 @@ catheter of each, fits the memoryless
 :class:`~skcath.backbones.PolynomialBackbone` of the motor angles and a
 :class:`~skcath.residuals.GRUResidual` on top of it, and compares their tip
 errors on shaft settings held out of training. The instruments are
-described on the :doc:`simulator page </simulator>`.
+described on the :doc:`simulator page </studies/simulator>`.
 """
 
 # Authors: The skcath developers

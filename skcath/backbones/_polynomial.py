@@ -280,7 +280,7 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
     (and, with ``calibration="sweep"``, the reference tip of sweep rows);
     they never change the fitted estimator. A run calibrated on its sweep
     needs more sweep rows with a finite reference than the polynomial has
-    coefficients per coordinate. ``docs/real_data.rst`` uses
+    coefficients per coordinate. ``docs/studies/real_data.rst`` uses
     ``calibration="fit"`` on recordings of a probe that has no 8-ray sweep.
 
     Examples

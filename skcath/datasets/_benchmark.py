@@ -236,7 +236,7 @@ def make_benchmark(
     neutral followed by a 100-step random walk of both motors inside
     ``|q| <= 60`` degrees; 6000-6300 samples at 10 Hz. The tip position in the
     bending-section base frame is computed from two noisy 6-DOF EM sensors
-    (paper eq. 1), as on the bench. ``docs/simulator.rst`` describes the
+    (paper eq. 1), as on the bench. ``docs/studies/simulator.rst`` describes the
     physics.
 
     Parameters
@@ -266,7 +266,7 @@ def make_benchmark(
     resweep : bool, default=False
         With ``shaft_change``: at the change, every run performs its sweep
         again in the new setting, then goes on with the rest of its motion
-        (``docs/simulator.rst``, *A shaft change and a re-sweep*). The part
+        (``docs/studies/simulator.rst``, *A shaft change and a re-sweep*). The part
         after the change is recorded as a run of its own, ``"<run>/after"``
         (setting: the new one; its sweep rows hold the tracked reference),
         so that every run still is a sweep followed by motion; the part
@@ -283,7 +283,7 @@ def make_benchmark(
         deviations and time constants, by key: ``gain_jitter``,
         ``offset_jitter_deg``, ``offset_drift_deg``, ``offset_drift_tau_s``,
         ``gain_drift``, ``gain_drift_tau_s``, ``base_position_mm``,
-        ``base_rotation_deg`` (``docs/simulator.rst``, *Runs*); e.g.
+        ``base_rotation_deg`` (``docs/studies/simulator.rst``, *Runs*); e.g.
         ``{"gain_drift": 0.0}`` switches the gain drift off. The runs keep
         their random numbers, so only the changed variation differs. Cached
         separately when given.
@@ -299,10 +299,10 @@ def make_benchmark(
         same at every rate (catheters, settings, motor trajectories, drifts,
         base poses: the protocol is drawn at 10 Hz), sampled at ``rate_hz``
         with fresh per-sample noise of the same standard deviation
-        (``docs/simulator.rst``, *Sample rate*). Cached separately when not
+        (``docs/studies/simulator.rst``, *Sample rate*). Cached separately when not
         the default.
     n_motors : {1, 2, 3}, default=2
-        Motors of the simulated instrument (``docs/simulator.rst``,
+        Motors of the simulated instrument (``docs/studies/simulator.rst``,
         *Instruments of one and three motors*): 1, one tendon pair bending in
         one plane, with a sweep out and back along its axis to both signs
         and a walk in an interval; 2, the benchmark's two pairs; 3, three
@@ -318,7 +318,7 @@ def make_benchmark(
         Load from / save to the cache folder. The cache file holds no
         pickle and is read with ``numpy.load(..., allow_pickle=False)``; it
         is used only when the key stored in it (``bunch.key``) matches
-        (``docs/simulator.rst``, *The cache*).
+        (``docs/studies/simulator.rst``, *The cache*).
     verbose : bool, default=False
         Log generation progress at INFO level.
 

@@ -302,7 +302,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         Nominal bend per degree of effective tendon input (deg/deg).
     unit_spread : float in [0, 1], default=0.35
         How far a unit's parameters spread over the family's ranges: each
-        parameter marked *(narrowed)* in ``docs/simulator.rst`` is a draw
+        parameter marked *(narrowed)* in ``docs/studies/simulator.rst`` is a draw
         ``x`` from its range pulled towards the middle ``m`` of the range,
         ``m + unit_spread (x - m)``, and so is the mean of the four tendon
         gains. 1 draws over the whole ranges (the units of simulator
@@ -311,7 +311,7 @@ def sample_catheter(random_state, name="C1", *, gain_deg_per_deg=3.2, unit_sprea
         dependent routing, differences between the tendons, offsets, the
         base-sensor mount) are drawn over their whole ranges in any case.
     n_motors : {1, 2, 3}, default=2
-        Motors of the instrument (``docs/simulator.rst``, *Instruments of
+        Motors of the instrument (``docs/studies/simulator.rst``, *Instruments of
         one and three motors*): each has its own tendon gains (positive and
         negative inputs) and offset. The unit is the two-motor unit of the
         same ``random_state`` with these changed: one motor keeps the first
@@ -439,7 +439,7 @@ def setting_parameters(catheter, setting):
 
     The simulator's ground truth of what a shaft setting does to a unit's
     transmission; every run of the unit in that setting starts from these
-    values, then adds its own jitter and drift (``docs/simulator.rst``).
+    values, then adds its own jitter and drift (``docs/studies/simulator.rst``).
 
     Physical routes of the shaft configuration (``Theta`` = capstan wrap in
     rad, ``b`` = unit shaft-bend direction):

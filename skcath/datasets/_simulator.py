@@ -819,10 +819,10 @@ def simulate_run(
     rate_hz : float, default=10.0
         Sample rate (Hz), from 1 to 1000. The same run (motion, catheter,
         drifts, base pose) sampled at this rate, with fresh per-sample noise
-        of the same standard deviation (``docs/simulator.rst``, *Sample
+        of the same standard deviation (``docs/studies/simulator.rst``, *Sample
         rate*); 10 gives the runs of the benchmark.
     n_motors : {1, 2, 3}, default=2
-        Motors of the instrument (``docs/simulator.rst``, *Instruments of
+        Motors of the instrument (``docs/studies/simulator.rst``, *Instruments of
         one and three motors*): one tendon pair bending in one plane (a
         2-ray sweep, a walk in an interval), two pairs (the benchmark's), or
         three single tendons at 120 degrees (a 6-ray sweep). The columns are

@@ -8,10 +8,10 @@ the tables it appears in.
 out within each catheter and with whole catheters held out;
 :func:`compute_tables` turns the held-out predictions into the paper's
 tables; :func:`write_results` saves them as CSV and draws the figures.
-``python -m skcath reproduce`` runs all three; see ``docs/results.rst``.
+``python -m skcath reproduce`` runs all three; see ``docs/studies/results.rst``.
 :func:`run_calibration_budget` scores the methods on reduced calibration
 sweeps (``python -m skcath calibration-budget``, see
-``docs/calibration_budget.rst``).
+``docs/studies/calibration_budget.rst``).
 """
 
 from ._budget import (

@@ -7,7 +7,7 @@ sample, and scores every budget on the unchanged motion rows;
 :func:`format_budget_report`, :func:`write_budget_results` and
 :func:`plot_calibration_budget` print, save and draw the result.
 ``python -m skcath calibration-budget`` runs them all; see
-``docs/calibration_budget.rst``.
+``docs/studies/calibration_budget.rst``.
 """
 
 from __future__ import annotations
