@@ -19,7 +19,14 @@ from ._csv import read_csv_text
 from ._errors import naming_the_file
 from ._options import ReadingOptions
 
-__all__ = ["CSV_SUFFIXES", "PARQUET_SUFFIXES", "file_kind", "read_recording", "read_table"]
+__all__ = [
+    "CSV_SUFFIXES",
+    "PARQUET_SUFFIXES",
+    "file_kind",
+    "read_recording",
+    "read_table",
+    "read_with_poses",
+]
 
 #: File name endings read as CSV (compressed CSV included) and as Parquet.
 CSV_SUFFIXES = (".csv", ".csv.gz", ".csv.bz2", ".csv.xz", ".csv.zip")
@@ -270,9 +277,9 @@ def read_recording(
 
     ``X`` then has the columns ``q1``, ``tau1`` of one motor.
     """
-    path = Path(path)
-    kind, stem = file_kind(path)
-    options = ReadingOptions(
+    return read_with_poses(
+        path,
+        with_poses=False,
         columns=columns,
         quat_order=quat_order,
         catheter=catheter,
@@ -287,4 +294,23 @@ def read_recording(
         tip_offset=tip_offset,
         torques=torques,
     )
-    return recording_from_table(read_table(path, kind), path.name, stem, options)
+
+
+def read_with_poses(path, *, with_poses=True, **options):
+    """:func:`read_recording`, also returning the raw sensor poses when asked.
+
+    Parameters
+    ----------
+    path : str or path-like
+        File to read.
+    with_poses : bool, default=True
+        Return ``(X, y, poses)`` as
+        :func:`~skcath.io._convert.recording_from_table` does, instead of
+        ``(X, y)``.
+    **options
+        Reading options of :func:`read_recording`.
+    """
+    path = Path(path)
+    kind, stem = file_kind(path)
+    checked = ReadingOptions(**options)  # before the file is read
+    return recording_from_table(read_table(path, kind), path.name, stem, checked, with_poses=with_poses)
