@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
 
 from ._format import CATHETER, PHASE, QUAT_ORDERS, RUN, SWEEP
 from ._validation import factorize_ids, motor_columns, to_array
@@ -38,10 +37,6 @@ MIN_SPREAD_RATIO = 3.0
 #: Sweep rows whose largest absolute motor angle is within this many degrees of
 #: the run's smallest on the sweep are the run's neutral rows.
 NEUTRAL_TOLERANCE_DEG = 0.5
-
-# Column permutation that brings a quaternion of the given order to the
-# scalar-last (x, y, z, w) layout that ``Rotation.from_quat`` expects.
-_TO_XYZW = {"wxyz": [1, 2, 3, 0], "xyzw": [0, 1, 2, 3]}
 
 # Quaternions with a norm below this are left out (no orientation).
 _MIN_QUAT_NORM = 1e-12
@@ -68,6 +63,8 @@ def neutral_rows(X):
 
     Raises
     ------
+    TypeError
+        If ``X`` is not a DataFrame.
     ValueError
         If a needed column is missing.
     """
@@ -190,9 +187,11 @@ def fit_quat_order(X, tip_position, base_position, base_orientation):
 
     Raises
     ------
+    TypeError
+        If ``X`` is not a DataFrame.
     ValueError
-        If ``X`` lacks a needed column or an array does not have one row per
-        row of ``X``.
+        If ``X`` lacks a needed column or has a missing id, or an array does
+        not have one row per row of ``X``.
 
     Notes
     -----
@@ -223,21 +222,20 @@ def fit_quat_order(X, tip_position, base_position, base_orientation):
     keep = np.isfinite(tip).all(axis=1) & np.isfinite(base).all(axis=1)
     keep &= np.isfinite(norms) & (norms > _MIN_QUAT_NORM)
     neutral = X.loc[mask].iloc[np.flatnonzero(keep)]
-    unit = quats[keep] / norms[keep][:, None]
-    return _decide(*_spreads(neutral, tip[keep] - base[keep], unit))
+    return _decide(*_spreads(neutral, tip[keep], base[keep], quats[keep]))
 
 
-def _spreads(neutral, offsets, unit):
+def _spreads(neutral, tip, base, quats):
     """Spread of every order, pooled and per catheter, and the runs that entered them.
 
     Parameters
     ----------
     neutral : pandas.DataFrame
         The neutral rows with finite poses (``catheter`` and ``run`` used).
-    offsets : ndarray of shape (m, 3)
-        Tip sensor minus base sensor position in the tracker frame (mm).
-    unit : ndarray of shape (m, 4)
-        Unit base quaternions, components as stored.
+    tip, base : ndarray of shape (m, 3)
+        Tip and base sensor positions in the tracker frame (mm).
+    quats : ndarray of shape (m, 4)
+        Base quaternions with a nonzero norm, components as stored.
 
     Returns
     -------
@@ -245,17 +243,20 @@ def _spreads(neutral, offsets, unit):
     n_runs : int
     table : pandas.DataFrame
     """
+    from .frames import tip_in_base_frame  # skcath.frames re-exports this module's API
+
     if len(neutral):
         codes, runs = factorize_ids(neutral, RUN)
+        row_catheter, catheters = factorize_ids(neutral, CATHETER)
     else:
-        codes, runs = np.zeros(0, dtype=np.intp), np.zeros(0, dtype=object)
-    run_catheter = neutral[CATHETER].to_numpy()[np.unique(codes, return_index=True)[1]]
-    cat_codes, catheters = pd.factorize(pd.Series(run_catheter, dtype=object))
-    table = pd.DataFrame({CATHETER: catheters})
+        codes, runs = np.zeros(0, dtype=np.intp), []
+        row_catheter, catheters = np.zeros(0, dtype=np.intp), []
+    cat_codes = row_catheter[np.unique(codes, return_index=True)[1]]
+    table = pd.DataFrame({CATHETER: pd.Series(catheters, dtype=object)})
     table["n_runs"] = np.bincount(cat_codes, minlength=len(catheters))
     spread = {}
     for order in QUAT_ORDERS:
-        vectors = Rotation.from_quat(unit[:, _TO_XYZW[order]]).inv().apply(offsets)
+        vectors = tip_in_base_frame(tip, base, quats, quat_order=order)
         terms = _spread_terms(_run_directions(vectors, codes, len(runs)), cat_codes, len(catheters))
         column = np.full(len(catheters), np.nan)
         for k, squares in terms.items():
