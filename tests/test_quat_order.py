@@ -153,3 +153,21 @@ def test_fit_bad_shapes_name_the_argument(tmp_path):
         fit_quat_order(X, good, good, np.zeros((len(X), 3)))
     with pytest.raises(ValueError, match=r"needs the column\(s\) \['phase'\]"):
         fit_quat_order(X.drop(columns="phase"), good, good, np.zeros((len(X), 4)))
+
+
+def test_single_file_of_several_runs_is_checked(tmp_path):
+    from skcath.io import read_recording
+
+    folder = _write_runs(tmp_path, "xyzw", n_catheters=1, n_runs=4)
+    one = pd.concat([pd.read_csv(p) for p in sorted(folder.glob("C0-*.csv"))], ignore_index=True)
+    path = tmp_path / "all" / "runs.csv"
+    path.parent.mkdir()
+    one.to_csv(path, index=False)
+    kwargs = {"columns": {"base_orientation": BASE_COLUMNS}}
+    with pytest.raises(ValueError, match=r"quat_order='wxyz'.*pass quat_order='xyzw'"):
+        read_recording(path, quat_order="wxyz", **kwargs)
+    X, _ = read_recording(path, quat_order="xyzw", **kwargs)
+    assert X["run"].nunique() == 4
+    read_recording(path, quat_order="wxyz", quat_check=False, **kwargs)
+    # a file of one run cannot tell: the wrong order passes
+    read_recording(folder / "C0-S0.csv", quat_order="wxyz", **kwargs)

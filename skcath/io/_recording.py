@@ -18,6 +18,7 @@ from ._convert import recording_from_table
 from ._csv import read_csv_text
 from ._errors import naming_the_file
 from ._options import ReadingOptions
+from ._quat import check_quat_orders, declared_order, neutral_poses
 
 __all__ = [
     "CSV_SUFFIXES",
@@ -123,6 +124,7 @@ def read_recording(
     valid=None,
     tip_offset=None,
     torques=True,
+    quat_check=True,
 ):
     """Read a recording exported by another tool into the long format.
 
@@ -202,6 +204,12 @@ def read_recording(
         missing one is an error). False for a rig without torque sensing:
         no torque is read, and ``X`` has no torque column (learners then
         need ``use_torque=False``).
+    quat_check : bool, default=True
+        When the file holds several runs of a catheter and the target is
+        computed from raw sensor poses, check the quaternion order against
+        the data as :func:`skcath.io.read_recordings` does (a ValueError
+        names the order that fits). One run cannot tell the orders apart,
+        so a file of one run passes. False skips the check.
 
     Returns
     -------
@@ -237,7 +245,8 @@ def read_recording(
         The result is finally checked with
         :func:`skcath._validation.check_recordings` (time strictly increasing
         within a run, finite motor and torque channels, a sweep before the
-        motion rows, ...).
+        motion rows, ...). With ``quat_check``, also when the base
+        quaternions of a file of several runs fit the other order.
     ImportError
         For a Parquet file when pyarrow is not installed.
     FileNotFoundError
@@ -277,9 +286,8 @@ def read_recording(
 
     ``X`` then has the columns ``q1``, ``tau1`` of one motor.
     """
-    return read_with_poses(
+    X, y, poses = read_with_poses(
         path,
-        with_poses=False,
         columns=columns,
         quat_order=quat_order,
         catheter=catheter,
@@ -294,6 +302,10 @@ def read_recording(
         tip_offset=tip_offset,
         torques=torques,
     )
+    if quat_check and poses is not None:
+        declared = declared_order({"columns": columns, "quat_order": quat_order})
+        check_quat_orders([neutral_poses(X, poses, declared)])
+    return X, y
 
 
 def read_with_poses(path, *, with_poses=True, **options):
