@@ -1,4 +1,4 @@
-"""How well the data tell the quaternion order: skcath.frames.fit_quat_order on the default benchmark.
+"""How well the data tell the quaternion order: fit_quat_order on the default benchmark.
 
 The raw EM sensor poses of ``make_benchmark()`` (4 catheters x 17 shaft
 settings x 3 runs; base quaternions stored scalar first) are handed to
@@ -49,7 +49,7 @@ QUAT_WXYZ = ["base_qw", "base_qx", "base_qy", "base_qz"]
 
 
 def neutral_data():
-    """The neutral rows of the default benchmark and their raw poses, quaternions in both layouts."""
+    """The neutral rows of the default benchmark and their raw poses, both quaternion layouts."""
     data = make_benchmark()
     rows = neutral_rows(data.X)
     X = data.X.loc[rows].reset_index(drop=True)
@@ -124,7 +124,8 @@ def table_one_run(X, tip, base, quats):
     for run in pd.unique(runs):
         keep = runs == run
         X_visits = X.loc[keep].assign(run=[f"{run}/{v}" for v in visit[keep]])
-        for row in verdicts(X_visits, tip[keep], base[keep], {o: q[keep] for o, q in quats.items()}):
+        kept = {order: q[keep] for order, q in quats.items()}
+        for row in verdicts(X_visits, tip[keep], base[keep], kept):
             rows.append({"run": run, **row})
     frame = pd.DataFrame(rows)
     return frame.groupby("right").agg(
@@ -164,7 +165,7 @@ def main():
     parser.add_argument("--draws", type=int, default=50, help="random subsets per catheter and k")
     parser.add_argument("--settings", type=int, nargs="+", default=[1, 2, 3, 5, 17])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--tee", help="folder of the TEE-probe recordings (motor*_current60_acq*.csv)")
+    parser.add_argument("--tee", help="folder of the TEE recordings (motor*_current60_acq*.csv)")
     args = parser.parse_args()
     for line in machine_lines():
         print(line)

@@ -27,7 +27,13 @@ import pandas as pd
 from ._format import CATHETER, PHASE, QUAT_ORDERS, RUN, SWEEP
 from ._validation import factorize_ids, motor_columns, to_array
 
-__all__ = ["MIN_SPREAD_RATIO", "NEUTRAL_TOLERANCE_DEG", "QuatOrderFit", "fit_quat_order", "neutral_rows"]
+__all__ = [
+    "MIN_SPREAD_RATIO",
+    "NEUTRAL_TOLERANCE_DEG",
+    "QuatOrderFit",
+    "fit_quat_order",
+    "neutral_rows",
+]
 
 #: Smallest ratio between the two orders' spreads for the data to tell which
 #: order fits; below it (e.g. a base that does not turn between runs, where the

@@ -1,4 +1,4 @@
-"""The quaternion order checked against the data: skcath.frames.fit_quat_order and read_recordings."""
+"""The quaternion order checked against the data (skcath.frames.fit_quat_order, the readers)."""
 
 import numpy as np
 import pandas as pd

@@ -495,7 +495,8 @@ def _target_values(source, tip_offset, invalid):
             block = source.stack(SENSOR_POSE_COLUMNS[group])
             block[invalid] = np.nan
             arrays[group] = block
-        arrays["file_columns"] = [source.columns[n] for n in SENSOR_POSE_COLUMNS["base_orientation"]]
+        quaternion = SENSOR_POSE_COLUMNS["base_orientation"]
+        arrays["file_columns"] = [source.columns[name] for name in quaternion]
         try:
             y = tip_in_base_frame(
                 arrays["tip_position"],

@@ -325,4 +325,5 @@ def read_with_poses(path, *, with_poses=True, **options):
     path = Path(path)
     kind, stem = file_kind(path)
     checked = ReadingOptions(**options)  # before the file is read
-    return recording_from_table(read_table(path, kind), path.name, stem, checked, with_poses=with_poses)
+    table = read_table(path, kind)
+    return recording_from_table(table, path.name, stem, checked, with_poses=with_poses)
