@@ -72,6 +72,10 @@ def test_right_order_is_not_flagged(tmp_path, layout):
     neutral = neutral_rows(X)
     assert neutral.sum() == 2 * 4 * N_NEUTRAL
     assert np.abs(np.linalg.norm(y[neutral], axis=1) - 60.0).max() < 2.0
+    # the check changes nothing in what is read
+    X_unchecked, y_unchecked = _read(tmp_path, layout, quat_check=False)
+    pd.testing.assert_frame_equal(X, X_unchecked)
+    np.testing.assert_array_equal(y, y_unchecked)
 
 
 @pytest.mark.parametrize(("layout", "declared"), [("xyzw", "wxyz"), ("wxyz", "xyzw")])
@@ -171,3 +175,20 @@ def test_single_file_of_several_runs_is_checked(tmp_path):
     read_recording(path, quat_order="wxyz", quat_check=False, **kwargs)
     # a file of one run cannot tell: the wrong order passes
     read_recording(folder / "C0-S0.csv", quat_order="wxyz", **kwargs)
+
+
+def test_files_are_checked_by_the_order_declared_for_them(tmp_path):
+    # a manifest declares the right order for C0's files and the wrong one for C1's
+    folder = _write_runs(tmp_path, "xyzw")
+    paths = sorted(p.name for p in folder.glob("*.csv"))
+    manifest = pd.DataFrame({
+        "path": paths, "quat_order": ["xyzw" if p.startswith("C0") else "wxyz" for p in paths],
+    })
+    manifest.to_csv(folder / "manifest.txt", index=False)
+    columns = {"base_orientation": BASE_COLUMNS}
+    with pytest.raises(ValueError, match=r"quat_order='wxyz'.*over 4 runs.*pass quat_order='xyzw'"):
+        read_recordings(manifest=folder / "manifest.txt", columns=columns, progress=False)
+    manifest["quat_order"] = "xyzw"
+    manifest.to_csv(folder / "manifest.txt", index=False)
+    X, _ = read_recordings(manifest=folder / "manifest.txt", columns=columns, progress=False)
+    assert X["run"].nunique() == 8
