@@ -24,15 +24,30 @@ some catheters transfer to another.
 
 Quaternions are accepted scalar first (``"wxyz"``, as NDI Aurora exports
 write them) or scalar last (``"xyzw"``, as SciPy and ROS use them).
+:func:`fit_quat_order` tells from the data which of the two orders the stored
+components fit, where the runs of a catheter allow it: the neutral tip of a
+catheter points the same way in the base frame in every run only when the
+base quaternions are read in their own order.
 """
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._format import QUAT_ORDERS
+from ._quat_order import MIN_SPREAD_RATIO, QuatOrderFit, fit_quat_order, neutral_rows
 from ._validation import check_quat_order, check_tip_offset, to_array
 
-__all__ = ["FRAMES", "QUAT_ORDERS", "quaternion_to_rotation", "sweep_frame", "tip_in_base_frame"]
+__all__ = [
+    "FRAMES",
+    "MIN_SPREAD_RATIO",
+    "QUAT_ORDERS",
+    "QuatOrderFit",
+    "fit_quat_order",
+    "neutral_rows",
+    "quaternion_to_rotation",
+    "sweep_frame",
+    "tip_in_base_frame",
+]
 
 #: Frames a residual learner can work in: each run's sweep frame, or the base frame B.
 FRAMES = ("sweep", "base")

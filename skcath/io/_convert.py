@@ -472,6 +472,10 @@ def _target_values(source, tip_offset, invalid):
     Returns
     -------
     y : ndarray of shape (n_rows, 3)
+    poses : dict or None
+        The masked sensor-pose arrays by group name (quaternions as ``w, x, y,
+        z`` by name), and under ``"file_columns"`` the file columns read as
+        ``base_qw .. base_qz``; None when ``y`` comes from ``p_*`` columns.
 
     Raises
     ------
@@ -491,8 +495,10 @@ def _target_values(source, tip_offset, invalid):
             block = source.stack(SENSOR_POSE_COLUMNS[group])
             block[invalid] = np.nan
             arrays[group] = block
+        quaternion = SENSOR_POSE_COLUMNS["base_orientation"]
+        arrays["file_columns"] = [source.columns[name] for name in quaternion]
         try:
-            return tip_in_base_frame(
+            y = tip_in_base_frame(
                 arrays["tip_position"],
                 arrays["base_position"],
                 arrays["base_orientation"],
@@ -500,6 +506,7 @@ def _target_values(source, tip_offset, invalid):
                 tip_offset=tip_offset,
                 tip_orientation=arrays.get("tip_orientation"),
             )
+            return y, arrays
         except ValueError as exc:
             used = {g: [source.columns[n] for n in SENSOR_POSE_COLUMNS[g]] for g in groups}
             raise ValueError(
@@ -523,7 +530,7 @@ def _target_values(source, tip_offset, invalid):
         )
     y = source.stack(TARGET_NAMES)
     y[invalid] = np.nan
-    return y
+    return y, None
 
 
 def _reference_values(source, y, sweep, invalid):
@@ -568,7 +575,7 @@ def _reference_values(source, y, sweep, invalid):
 # ---------------------------------------------------------------------------
 # the recording
 # ---------------------------------------------------------------------------
-def recording_from_table(frame, name, stem, options):
+def recording_from_table(frame, name, stem, options, *, with_poses=False):
     """Convert a table in file column names into ``(X, y)``.
 
     Shared by every reader of :mod:`skcath.io`; all but
@@ -585,12 +592,19 @@ def recording_from_table(frame, name, stem, options):
         Default run id.
     options : ReadingOptions
         Checked reading options.
+    with_poses : bool, default=False
+        Also return the raw sensor poses the target was computed from.
 
     Returns
     -------
     X : pandas.DataFrame
     y : ndarray of shape (n_rows, 3)
         As in :func:`skcath.io.read_recording`.
+    poses : dict or None
+        Only with ``with_poses``: the sensor-pose arrays by group name, one
+        row per row of ``X`` (quaternions ``w, x, y, z`` by name), and the
+        file columns read as the base quaternion under ``"file_columns"``;
+        None when the target was read from ``p_*`` columns.
 
     Raises
     ------
@@ -613,12 +627,13 @@ def recording_from_table(frame, name, stem, options):
     channels = _channel_names(source, options)
     for channel in channels:
         data[channel] = _channel(source, options.constants, channel)
-    y = _target_values(source, options.tip_offset, invalid)
+    y, poses = _target_values(source, options.tip_offset, invalid)
     ref = _reference_values(source, y, data[PHASE] == SWEEP, invalid)
     data.update(zip(REFERENCE_COLUMNS, ref.T))
     order = [*ID_COLUMNS, TIME, PHASE, *channels, *REFERENCE_COLUMNS]
     X = pd.DataFrame(data, index=pd.RangeIndex(len(frame)), columns=order)
     try:
-        return check_recordings(X, y, require_sweep=options.require_sweep)
+        X, y = check_recordings(X, y, require_sweep=options.require_sweep)
     except ValueError as exc:
         raise ValueError(f"{label}: the recording read is not valid: {exc}") from None
+    return (X, y, poses) if with_poses else (X, y)

@@ -19,7 +19,8 @@ from .._format import CATHETER, ID_COLUMNS, RUN, SETTING, channel_index
 from .._validation import check_recordings
 from ._errors import naming_the_file
 from ._options import OPTION_NAMES, check_option_names
-from ._recording import CSV_SUFFIXES, PARQUET_SUFFIXES, file_kind, read_recording
+from ._quat import check_quat_orders, declared_order, neutral_poses
+from ._recording import CSV_SUFFIXES, PARQUET_SUFFIXES, file_kind, read_with_poses
 
 __all__ = ["read_recordings"]
 
@@ -164,12 +165,70 @@ def _channels(X):
     return [c for c in X.columns if channel_index(c) is not None]
 
 
+def _read_files(jobs, read_kwargs, progress, quat_check):
+    """Read every file of ``jobs``; check the ids, the channels and the quaternion order.
+
+    Parameters
+    ----------
+    jobs : list of (pathlib.Path, dict)
+        Files and their own options (ids from the pattern or the manifest).
+    read_kwargs : dict
+        Options shared by every file.
+    progress : bool
+        Show a progress bar.
+    quat_check : bool
+        Check the quaternion order against the data
+        (:func:`~skcath.io._quat.check_quat_orders`).
+
+    Returns
+    -------
+    frames : list of pandas.DataFrame
+    targets : list of ndarray of shape (n_rows, 3)
+    """
+    frames, targets, owner, neutral = [], [], {}, []
+    for path, options in tqdm(jobs, disable=not progress, desc="reading", unit="file"):
+        clash = set(options) & set(read_kwargs)
+        if clash:
+            raise ValueError(
+                f"{path.name}: {sorted(clash)} given both for this file (pattern or "
+                "manifest) and as a keyword argument for all files; give one or the other."
+            )
+        X, y, poses = read_with_poses(path, **options, **read_kwargs)
+        if quat_check:
+            found = neutral_poses(X, poses, declared_order({**options, **read_kwargs}))
+            neutral += [] if found is None else [found]
+        for run in pd.unique(X[RUN].astype(str)):
+            if run in owner:
+                raise ValueError(
+                    f"the run id {run!r} is in both {owner[run]!r} and {path.name!r}; a run id "
+                    "must be unique across all files (across catheters and settings too). Give "
+                    "each file its own run id, e.g. a pattern whose run group spans the "
+                    "catheter and setting, r'(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_r\\d+)', "
+                    "or a manifest 'run' column."
+                )
+            owner[run] = path.name
+        if frames and list(X.columns) != list(frames[0].columns):
+            first = next(iter(owner.values()))
+            raise ValueError(
+                f"{path.name} has the channels {_channels(X)} but {first} has "
+                f"{_channels(frames[0])}; the runs of one data set have the same motors "
+                "and either all have torques or none (pass constants=... or torques=False "
+                "to read them alike)."
+            )
+        frames.append(X)
+        targets.append(y)
+    if quat_check:
+        check_quat_orders(neutral)
+    return frames, targets
+
+
 @validate_params(
     {
         "source": "no_validation",
         "pattern": "no_validation",
         "manifest": "no_validation",
         "progress": ["boolean"],
+        "quat_check": ["boolean"],
     },
     prefer_skip_nested_validation=True,
 )
@@ -179,6 +238,7 @@ def read_recordings(
     pattern=None,
     manifest=None,
     progress=True,
+    quat_check=True,
     **read_kwargs,
 ):
     """Read many recording files into one long table.
@@ -208,6 +268,17 @@ def read_recordings(
         An empty cell leaves that option unset for that file.
     progress : bool, default=True
         Show a tqdm progress bar over the files.
+    quat_check : bool, default=True
+        Check the quaternion order against the data when the target is
+        computed from raw sensor poses: read in the right order, a catheter's
+        tip at the neutral pose of its sweep points the same way in the base
+        frame in every run; read in the wrong one, it scatters as soon as the
+        base sensor turns between runs
+        (:func:`skcath.frames.fit_quat_order`). A ValueError names the order
+        that fits. Where the data cannot tell (one run per catheter, or a
+        base sensor that keeps its orientation), the files pass. False skips
+        the check, for a rig where the neutral tip of a catheter does not
+        keep its direction across runs.
     **read_kwargs
         Options of :func:`skcath.io.read_recording` shared by every file
         (``columns``, ``constants``, ``n_sweep``, ...).
@@ -232,7 +303,9 @@ def read_recordings(
         match ``pattern`` (the message names it); an id is given by the
         pattern or manifest and also in ``read_kwargs``; a manifest file does
         not exist; two files hold the same (catheter, setting, run); or a
-        file cannot be read (the message names the file).
+        file cannot be read (the message names the file); or, with
+        ``quat_check``, the base quaternions fit the other order than they
+        were read in.
 
     Examples
     --------
@@ -268,35 +341,7 @@ def read_recordings(
                 options = {k: v for k, v in match.groupdict().items() if v is not None}
             jobs.append((path, options))
 
-    frames, targets, owner = [], [], {}
-    for path, options in tqdm(jobs, disable=not progress, desc="reading", unit="file"):
-        clash = set(options) & set(read_kwargs)
-        if clash:
-            raise ValueError(
-                f"{path.name}: {sorted(clash)} given both for this file (pattern or "
-                "manifest) and as a keyword argument for all files; give one or the other."
-            )
-        X, y = read_recording(path, **options, **read_kwargs)
-        for run in pd.unique(X[RUN].astype(str)):
-            if run in owner:
-                raise ValueError(
-                    f"the run id {run!r} is in both {owner[run]!r} and {path.name!r}; a run id "
-                    "must be unique across all files (across catheters and settings too). Give "
-                    "each file its own run id, e.g. a pattern whose run group spans the "
-                    "catheter and setting, r'(?P<run>(?P<catheter>[^_]+)_(?P<setting>[^_]+)_r\\d+)', "
-                    "or a manifest 'run' column."
-                )
-            owner[run] = path.name
-        if frames and list(X.columns) != list(frames[0].columns):
-            first = next(iter(owner.values()))
-            raise ValueError(
-                f"{path.name} has the channels {_channels(X)} but {first} has "
-                f"{_channels(frames[0])}; the runs of one data set have the same motors "
-                "and either all have torques or none (pass constants=... or torques=False "
-                "to read them alike)."
-            )
-        frames.append(X)
-        targets.append(y)
+    frames, targets = _read_files(jobs, read_kwargs, progress, quat_check)
     # the joined table must be valid recordings as a whole, as every reader's output is;
     # each file's sweep was checked as its options asked (phase="motion": none)
     return check_recordings(

@@ -18,8 +18,16 @@ from ._convert import recording_from_table
 from ._csv import read_csv_text
 from ._errors import naming_the_file
 from ._options import ReadingOptions
+from ._quat import check_quat_orders, declared_order, neutral_poses
 
-__all__ = ["CSV_SUFFIXES", "PARQUET_SUFFIXES", "file_kind", "read_recording", "read_table"]
+__all__ = [
+    "CSV_SUFFIXES",
+    "PARQUET_SUFFIXES",
+    "file_kind",
+    "read_recording",
+    "read_table",
+    "read_with_poses",
+]
 
 #: File name endings read as CSV (compressed CSV included) and as Parquet.
 CSV_SUFFIXES = (".csv", ".csv.gz", ".csv.bz2", ".csv.xz", ".csv.zip")
@@ -116,6 +124,7 @@ def read_recording(
     valid=None,
     tip_offset=None,
     torques=True,
+    quat_check=True,
 ):
     """Read a recording exported by another tool into the long format.
 
@@ -195,6 +204,12 @@ def read_recording(
         missing one is an error). False for a rig without torque sensing:
         no torque is read, and ``X`` has no torque column (learners then
         need ``use_torque=False``).
+    quat_check : bool, default=True
+        When the file holds several runs of a catheter and the target is
+        computed from raw sensor poses, check the quaternion order against
+        the data as :func:`skcath.io.read_recordings` does (a ValueError
+        names the order that fits). One run cannot tell the orders apart,
+        so a file of one run passes. False skips the check.
 
     Returns
     -------
@@ -230,7 +245,8 @@ def read_recording(
         The result is finally checked with
         :func:`skcath._validation.check_recordings` (time strictly increasing
         within a run, finite motor and torque channels, a sweep before the
-        motion rows, ...).
+        motion rows, ...). With ``quat_check``, also when the base
+        quaternions of a file of several runs fit the other order.
     ImportError
         For a Parquet file when pyarrow is not installed.
     FileNotFoundError
@@ -270,9 +286,8 @@ def read_recording(
 
     ``X`` then has the columns ``q1``, ``tau1`` of one motor.
     """
-    path = Path(path)
-    kind, stem = file_kind(path)
-    options = ReadingOptions(
+    X, y, poses = read_with_poses(
+        path,
         columns=columns,
         quat_order=quat_order,
         catheter=catheter,
@@ -287,4 +302,28 @@ def read_recording(
         tip_offset=tip_offset,
         torques=torques,
     )
-    return recording_from_table(read_table(path, kind), path.name, stem, options)
+    if quat_check and poses is not None:
+        declared = declared_order({"columns": columns, "quat_order": quat_order})
+        check_quat_orders([neutral_poses(X, poses, declared)])
+    return X, y
+
+
+def read_with_poses(path, *, with_poses=True, **options):
+    """:func:`read_recording`, also returning the raw sensor poses when asked.
+
+    Parameters
+    ----------
+    path : str or path-like
+        File to read.
+    with_poses : bool, default=True
+        Return ``(X, y, poses)`` as
+        :func:`~skcath.io._convert.recording_from_table` does, instead of
+        ``(X, y)``.
+    **options
+        Reading options of :func:`read_recording`.
+    """
+    path = Path(path)
+    kind, stem = file_kind(path)
+    checked = ReadingOptions(**options)  # before the file is read
+    table = read_table(path, kind)
+    return recording_from_table(table, path.name, stem, checked, with_poses=with_poses)
