@@ -205,6 +205,33 @@ def test_planted_pickle_in_a_parquet_recording_never_runs(tmp_path):
     assert not marker.exists()
 
 
+def test_planted_code_in_a_ros_bag_message_definition_never_runs(tmp_path):
+    """rosbags generates classes from a bag's message definitions: code in one is not run."""
+    rosbag1 = pytest.importorskip("rosbags.rosbag1")
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    from skcath.io import read_rosbag
+
+    marker = tmp_path / "payload-ran"
+    run = f'__import__("os").mkdir({str(marker)!r})'
+    definition = (f"string C=x'; {run} #\n"  # a constant: its value is the rest of the line
+                  f"float64 a = {run}\n"
+                  f'int32 b  # """; {run}; """\n')
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg(definition, "evil_msgs/msg/Evil"))  # for its hash
+    _, md5 = store.generate_msgdef("evil_msgs/msg/Evil")
+    path = tmp_path / "planted.bag"
+    with rosbag1.Writer(path) as writer:
+        connection = writer.add_connection("/evil", "evil_msgs/msg/Evil", msgdef=definition,
+                                           md5sum=md5)
+        writer.write(connection, 1_700_000_000 * 10**9, bytes(16))
+    # the bag is opened and its definitions registered; the topics asked for are missing
+    with pytest.raises(ValueError, match=r"the bag has no topic '/joints'.*\['/evil'\]"):
+        read_rosbag(path, {"joint_states": "/joints", "q1": "m1", "q2": "m2", "tip": "/tip"},
+                    tolerance=0.005)
+    assert not marker.exists()
+
+
 #: The calls of the package that read something that could hold a pickle or
 #: code: each is listed in docs/persistence.rst with how it is kept safe.
 READERS = {
