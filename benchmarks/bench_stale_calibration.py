@@ -195,7 +195,7 @@ def main():
     _print_table(errors, args.dev_catheter, args.catheters, f"{title}, {tag}")
     if args.plain is not None:
         plain = {c: persist.load(Path(args.plain) / f"{VARIANT}-plain-seed{args.seed}-{c}.skcath",
-                                 allow_pickle=True)  # kept by this script, joblib until now
+                                 allow_pickle=True)  # kept by this script, joblib in earlier versions
                  for c in args.catheters}
         errors_plain, _, _ = _evaluate(plain, recalibrations, changed, args.engine)
         _print_table(errors_plain, args.dev_catheter, args.catheters, f"{title}, plain")
