@@ -104,7 +104,8 @@ def _pretrained(X_learner, y, seed, n_jobs, models_dir):
     paths = {f.catheter: None if models_dir is None else Path(models_dir) / f"{VARIANT}-seed{seed}-{f.catheter}.skcath"
              for f in folds}
     if all(p is not None and p.exists() for p in paths.values()):
-        return {c: persist.load(p) for c, p in paths.items()}, 0.0
+        # this script's own files, joblib when kept by earlier versions
+        return {c: persist.load(p, allow_pickle=True) for c, p in paths.items()}, 0.0
     start = time.perf_counter()
     result = pretrain_models(X_learner, y, folds, schedule, n_jobs=n_jobs, verbose=True)
     models = {c: result.models[VARIANT, seed, c] for c in paths}

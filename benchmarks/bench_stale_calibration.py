@@ -117,7 +117,8 @@ def _pretrained(X_learner, y, catheters, seed, models_dir, tag):
     models, seconds = {}, {}
     for fold in folds:  # one at a time: one torch thread, one core
         if path[fold.catheter].exists():
-            models[fold.catheter] = persist.load(path[fold.catheter])
+            # this script's own files, joblib when kept by earlier versions
+            models[fold.catheter] = persist.load(path[fold.catheter], allow_pickle=True)
             continue
         result = pretrain_models(X_learner, y, [fold], schedule, verbose=True)
         models[fold.catheter] = result.models[VARIANT, seed, fold.catheter]
@@ -193,7 +194,8 @@ def main():
     title = "Tip error after the change (mm, mean per-run RMSE)"
     _print_table(errors, args.dev_catheter, args.catheters, f"{title}, {tag}")
     if args.plain is not None:
-        plain = {c: persist.load(Path(args.plain) / f"{VARIANT}-plain-seed{args.seed}-{c}.skcath")
+        plain = {c: persist.load(Path(args.plain) / f"{VARIANT}-plain-seed{args.seed}-{c}.skcath",
+                                 allow_pickle=True)  # kept by this script, joblib in earlier versions
                  for c in args.catheters}
         errors_plain, _, _ = _evaluate(plain, recalibrations, changed, args.engine)
         _print_table(errors_plain, args.dev_catheter, args.catheters, f"{title}, plain")

@@ -90,7 +90,8 @@ def _plain_model(X, y, folds, schedule, models_dir):
     """PDL+GRU pretrained on the other catheters (loaded from ``models_dir`` if kept there)."""
     path = None if models_dir is None else Path(models_dir) / f"{PROPOSED_METHOD}-seed{schedule.seeds[0]}-{CATHETER}.skcath"
     if path is not None and path.exists():
-        return persist.load(path), 0.0
+        # this script's own file, joblib when kept by earlier versions
+        return persist.load(path, allow_pickle=True), 0.0
     start = time.perf_counter()
     model = pretrain_models(X, y, folds.loco, schedule, variants=(PROPOSED_METHOD,)).models
     model = model[PROPOSED_METHOD, schedule.seeds[0], CATHETER]

@@ -24,6 +24,8 @@ from sklearn.base import BaseEstimator
 from skorch.history import History
 from skorch.utils import get_map_location
 
+from .online import OnlineEstimator
+from .online._state import OnlineEstimatorState
 from .residuals import GRUResidual, MLPResidual
 from .residuals._features import Standardizer
 
@@ -217,6 +219,8 @@ def _walk(obj, convert, memo):
 
 
 def _plain_learner(obj):
+    if isinstance(obj, OnlineEstimator):
+        return OnlineEstimatorState.of(obj, to_plain)
     if not isinstance(obj, LEARNERS):
         return None
     state = ResidualLearnerState.of(obj)
@@ -225,6 +229,8 @@ def _plain_learner(obj):
 
 
 def _built_learner(obj):
+    if isinstance(obj, OnlineEstimatorState):
+        return obj.build(from_plain)
     if not isinstance(obj, ResidualLearnerState):
         return None
     obj.params = from_plain(obj.params)
@@ -233,6 +239,10 @@ def _built_learner(obj):
 
 def to_plain(estimator):
     """``estimator`` with each residual learner in it replaced by its :class:`ResidualLearnerState`.
+
+    Each :class:`~skcath.online.OnlineEstimator` in it is replaced by its
+    :class:`~skcath.online._state.OnlineEstimatorState` (whose DataFrames are
+    stored as arrays, its residual learner as above).
 
     Parameters
     ----------
@@ -252,6 +262,8 @@ def to_plain(estimator):
 
 def from_plain(estimator):
     """The inverse of :func:`to_plain`: every :class:`ResidualLearnerState` built again.
+
+    And every :class:`~skcath.online._state.OnlineEstimatorState`.
 
     Raises
     ------

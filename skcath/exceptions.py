@@ -9,6 +9,7 @@ __all__ = [
     "GroupsNotUsedWarning",
     "IncompatibleVersionError",
     "InconsistentVersionWarning",
+    "PickledFileError",
     "PipelineChangedWarning",
     "TruncatedFileWarning",
 ]
@@ -51,6 +52,15 @@ class IncompatibleVersionError(ValueError):
     Raised by :func:`skcath.persist.load` before anything is unpickled; pass
     ``allow_version_mismatch=True`` to load the file anyway. See
     :func:`skcath.persist.is_compatible_version` for the rule.
+    """
+
+
+class PickledFileError(ValueError):
+    """A file holds a pickle, which :func:`skcath.persist.load` does not unpickle by default.
+
+    Unpickling runs any code the file contains. Raised before anything is
+    unpickled; pass ``allow_pickle=True`` to load a file you trust, and save
+    it again in the pickle-free default format.
     """
 
 

@@ -15,11 +15,14 @@ deserializes anything, so a changed class layout gives a clear message instead
 of an obscure unpickling error. A file that is not such an archive, or whose
 header is damaged, raises a ``ValueError`` naming the file and the problem.
 
-The skops format stores no pickle at all: the residual learners, whose torch
-state skops cannot store, go into it as plain arrays and parameters
-(:mod:`skcath._torch_state`) and are built again on loading. It is the format
-for files shared with others; a joblib file runs code from the file when it
-is loaded.
+The skops format, the default, stores no pickle at all: the residual
+learners, whose torch state skops cannot store, go into it as plain arrays
+and parameters (:mod:`skcath._torch_state`), a started
+:class:`~skcath.online.OnlineEstimator` as its plain state
+(:mod:`skcath.online._state`), and both are built again on loading. Loading
+builds only skcath's own classes (:data:`TRUSTED_TYPES`), skops' defaults and
+the types the caller names. A joblib file runs code from the file when it is
+loaded, so :func:`load` refuses one unless ``allow_pickle=True``.
 
 Estimators pickled directly (``pickle.dump``, ``joblib.dump``) carry the skcath
 version too: :class:`~skcath._base.RecordingsMixin` stores it in the pickled
@@ -45,16 +48,24 @@ import joblib
 from sklearn.utils._param_validation import validate_params
 
 from ._torch_state import from_plain, to_plain
+from ._trust import check_schema, default_trusted, read_schema
 from ._version import current_version
 
 # the version warning and error, public here too (their home is skcath.exceptions)
-from .exceptions import FileSuffixWarning, IncompatibleVersionError, InconsistentVersionWarning
+from .exceptions import (
+    FileSuffixWarning,
+    IncompatibleVersionError,
+    InconsistentVersionWarning,
+    PickledFileError,
+)
 
 __all__ = [
     "FORMATS",
     "SUFFIX",
+    "TRUSTED_TYPES",
     "InconsistentVersionWarning",
     "IncompatibleVersionError",
+    "PickledFileError",
     "get_untrusted_types",
     "is_compatible_version",
     "load",
@@ -67,6 +78,11 @@ FORMATS = ("joblib", "skops")
 
 #: Suffix of the files written by :func:`save`.
 SUFFIX = ".skcath"
+
+#: skcath's types that :func:`load` trusts in a skops-format file, beyond
+#: skops' defaults: the classes :func:`save` writes, whose loading runs only
+#: skcath's code on numbers, strings and arrays.
+TRUSTED_TYPES = tuple(default_trusted())
 
 _HEADER = "skcath.json"
 _PAYLOAD = {"joblib": "estimator.joblib", "skops": "estimator.skops"}
@@ -146,7 +162,8 @@ def _skops_payload(estimator) -> bytes:
         raise ValueError(
             f"format='skops' cannot serialize this {type(estimator).__name__}: it holds "
             f"objects skops does not know, such as pandas DataFrames ({exc}). Remove them, or "
-            "use format='joblib' for a file you will only load yourself."
+            "use format='joblib' for a file you will only load yourself (loading it needs "
+            "allow_pickle=True)."
         ) from exc
 
 
@@ -160,7 +177,7 @@ def _skops_payload(estimator) -> bytes:
     },
     prefer_skip_nested_validation=True,
 )
-def save(estimator, path, *, format="joblib", compress=3) -> None:
+def save(estimator, path, *, format="skops", compress=3) -> None:
     """Save a (fitted) estimator with the versions of skcath and its dependencies.
 
     Parameters
@@ -172,17 +189,22 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
         (:data:`SUFFIX`); another suffix warns with
         :class:`~skcath.exceptions.FileSuffixWarning`, because no other tool
         reads the file.
-    format : {"joblib", "skops"}, default="joblib"
-        Serializer of the estimator. ``"joblib"`` handles every estimator;
-        loading it runs arbitrary code from the file, so load only files you
-        trust. ``"skops"`` needs the ``skops`` package and stores no pickle:
-        :func:`load` builds only the types you trust (see
-        :func:`get_untrusted_types`). It stores the backbones,
-        :class:`~skcath.residuals.NoResidual` and the residual learners
-        :class:`~skcath.residuals.GRUResidual` and
+    format : {"skops", "joblib"}, default="skops"
+        Serializer of the estimator. ``"skops"`` stores no pickle:
+        :func:`load` builds only skcath's classes (:data:`TRUSTED_TYPES`),
+        skops' defaults and the types you name (see
+        :func:`get_untrusted_types`). It stores every estimator skcath makes:
+        the backbones, :class:`~skcath.residuals.NoResidual`, the residual
+        learners :class:`~skcath.residuals.GRUResidual` and
         :class:`~skcath.residuals.MLPResidual` (their network, criterion and
-        optimizer state as arrays, rebuilt on loading); use it for files you
-        share (see ``docs/persistence.rst``).
+        optimizer state as arrays, rebuilt on loading), pipelines and
+        :class:`~skcath.ensemble.SeedEnsembleRegressor` of them,
+        :class:`~skcath.online.OnlineEstimator` (started or not, with its
+        stream's state), :class:`~skcath.online.ShaftChangeDetector` and
+        :class:`~skcath.online.MotorRecalibration`. ``"joblib"`` stores any
+        object, as a pickle: loading it runs arbitrary code from the file,
+        so :func:`load` refuses it unless ``allow_pickle=True`` (see
+        ``docs/persistence.rst``).
     compress : int, default=3
         zlib level (0-9) of the archive members.
 
@@ -221,6 +243,17 @@ def save(estimator, path, *, format="joblib", compress=3) -> None:
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=compress) as zf:
         zf.writestr(_HEADER, json.dumps(header, indent=2))
         zf.writestr(_PAYLOAD[format], payload)
+
+
+def _pickled(path, name, saved) -> PickledFileError:
+    """The error of a joblib-format file loaded without ``allow_pickle``."""
+    return PickledFileError(
+        f"{os.fspath(path)!r} holds a {name} pickled by joblib (format='joblib', skcath "
+        f"{saved}), and unpickling runs any code the file contains, so it is not loaded by "
+        "default. If you trust where the file comes from, load it with "
+        "skcath.persist.load(path, allow_pickle=True), then save it again in the pickle-free "
+        "format: skcath.persist.save(estimator, path) (format='skops', the default)."
+    )
 
 
 def _damaged(path, problem) -> ValueError:
@@ -324,9 +357,11 @@ def read_versions(path) -> dict:
 
 @validate_params({"path": _PATH}, prefer_skip_nested_validation=True)
 def get_untrusted_types(path) -> list[str]:
-    """Types in a skops-format file that skops does not trust by default.
+    """Types in a skops-format file that :func:`load` does not trust by default.
 
-    Pass the ones you trust to ``load(path, trusted=...)``.
+    Neither skops' defaults nor skcath's own classes (:data:`TRUSTED_TYPES`).
+    Pass the ones you trust to ``load(path, trusted=...)``; a file written
+    by :func:`save` from skcath's estimators lists none.
 
     Parameters
     ----------
@@ -349,9 +384,10 @@ def get_untrusted_types(path) -> list[str]:
             )
         payload = _read_member(zf, _PAYLOAD["skops"], path)
     try:
-        return sio.get_untrusted_types(data=payload)
+        untrusted = sio.get_untrusted_types(data=payload)
     except _SKOPS_ERRORS as exc:
         raise _damaged(path, f"its {_PAYLOAD['skops']} cannot be read by skops ({exc})") from exc
+    return [name for name in untrusted if name not in TRUSTED_TYPES]
 
 
 #: Errors of skops reading bytes that are not a skops file.
@@ -367,6 +403,12 @@ def _deserialize(fmt, payload, path, trusted):
             raise _damaged(path, f"its {_PAYLOAD[fmt]} cannot be unpickled ({exc})") from exc
     import skops.io as sio
 
+    trusted = [*TRUSTED_TYPES, *(trusted or ())]
+    try:
+        schema = read_schema(payload)
+    except _SKOPS_ERRORS as exc:
+        raise _damaged(path, f"its {_PAYLOAD[fmt]} cannot be read by skops ({exc})") from exc
+    check_schema(schema, trusted, path)
     try:
         plain = sio.loads(payload, trusted=trusted)
     except _SKOPS_ERRORS as exc:
@@ -381,22 +423,34 @@ def _deserialize(fmt, payload, path, trusted):
     {
         "path": _PATH,
         "trusted": [list, tuple, None],
+        "allow_pickle": ["boolean"],
         "allow_version_mismatch": ["boolean"],
     },
     prefer_skip_nested_validation=True,
 )
-def load(path, *, trusted=None, allow_version_mismatch=False):
+def load(path, *, trusted=None, allow_pickle=False, allow_version_mismatch=False):
     """Load an estimator saved by :func:`save`, after checking the skcath version.
+
+    A skops-format file (the default of :func:`save`) is built from plain
+    data, with only trusted types: skops' defaults, skcath's own classes
+    (:data:`TRUSTED_TYPES`) and ``trusted``. A joblib-format file is a
+    pickle, which runs any code it holds when it is loaded: it is refused
+    unless ``allow_pickle=True``.
 
     Parameters
     ----------
     path : str or os.PathLike
         File written by :func:`save`.
     trusted : list of str, default=None
-        skops format only: types to trust beyond skops' defaults, as listed by
-        :func:`get_untrusted_types`; loading fails if the file holds any other
-        untrusted type. Must be None for a joblib file, whose loading runs
-        arbitrary code from the file: load only joblib files you trust.
+        skops format only: types to trust beyond skops' defaults and
+        :data:`TRUSTED_TYPES`, as listed by :func:`get_untrusted_types`;
+        loading fails if the file holds any other untrusted type. Must be
+        None for a joblib file.
+    allow_pickle : bool, default=False
+        Load a joblib-format file (a pickle, such as the files earlier skcath
+        versions wrote by default). Unpickling runs any code the file holds:
+        pass True only for a file from a source you trust, and save the
+        estimator again with :func:`save` (pickle-free by default).
     allow_version_mismatch : bool, default=False
         Load a file written by an incompatible skcath version anyway (with an
         :class:`~skcath.exceptions.InconsistentVersionWarning`) instead of raising.
@@ -411,6 +465,10 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
         The file is not a zip archive written by :func:`save`, or it is
         damaged: its header is missing, is not JSON or lacks a key, or a
         member cannot be read. The message names the file and the problem.
+        Or a skops-format file holds a skorch net stored as an object (whose
+        building would unpickle bytes), which :func:`save` never writes.
+    PickledFileError
+        The file is in the joblib format and ``allow_pickle`` is False.
     IncompatibleVersionError
         The file was written by a skcath version that :func:`is_compatible_version`
         rejects, and ``allow_version_mismatch`` is False.
@@ -439,6 +497,8 @@ def load(path, *, trusted=None, allow_version_mismatch=False):
             raise ValueError(
                 f"trusted: only for skops-format files; {os.fspath(path)!r} holds a {fmt} payload"
             )
+        if fmt == "joblib" and not allow_pickle:
+            raise _pickled(path, name, saved)
         payload = _read_member(zf, _PAYLOAD[fmt], path)
     with warnings.catch_warnings():
         # one warning from here instead of one per unpickled skcath estimator

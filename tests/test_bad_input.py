@@ -871,9 +871,9 @@ SAVED_FILE_DAMAGED = [
     pytest.param(_edit_header(lambda h: h.update(estimator=None)),
                  r"'estimator' of its skcath\.json is None, not a class name",
                  id="saved-file-estimator-not-a-string"),
-    pytest.param(_replace_member("estimator.joblib", None), r"it has no estimator\.joblib",
+    pytest.param(_replace_member("estimator.skops", None), r"it has no estimator\.skops",
                  id="saved-file-without-payload"),
-    pytest.param(_corrupt_payload, r"its member estimator\.joblib cannot be read \(Bad CRC-32",
+    pytest.param(_corrupt_payload, r"its member estimator\.skops cannot be read \(Bad CRC-32",
                  id="saved-file-corrupt-payload"),
 ]
 
@@ -935,14 +935,10 @@ def test_residual_pipeline_from_others_loads_without_pickle(bench, tmp_path):
         max_epochs=1, module__hidden_size=8, window_step=200, random_state=0, n_threads=1))])
     expected = pipe.fit(X, y).predict(X)
     path = tmp_path / "from_others.skcath"
-    persist.save(pipe, path, format="skops")
-    untrusted = persist.get_untrusted_types(path)
-    assert untrusted == ["skcath._torch_state.ResidualLearnerState",
-                         "skcath.backbones._backbone.PDLBackbone",
-                         "skcath.residuals._estimators.GRUResidual"]
-    with pytest.raises(TypeError, match=r"Untrusted types found.*GRUResidual"):
-        persist.load(path)
-    np.testing.assert_array_equal(persist.load(path, trusted=untrusted).predict(X), expected)
+    persist.save(pipe, path)  # pickle-free by default
+    # skcath's own classes are trusted by default: nothing left for the user to trust
+    assert persist.get_untrusted_types(path) == []
+    np.testing.assert_array_equal(persist.load(path).predict(X), expected)
 # targets, references and cross-validation
 # ---------------------------------------------------------------------------
 def test_target_frame_columns_are_matched_by_name(bench):

@@ -229,13 +229,16 @@ def test_exceptions_are_the_same_classes_everywhere():
 
     assert set(exceptions.__all__) == {
         "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
-        "IncompatibleVersionError", "PipelineChangedWarning", "TruncatedFileWarning",
+        "IncompatibleVersionError", "PickledFileError", "PipelineChangedWarning",
+        "TruncatedFileWarning",
     }
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
     assert issubclass(exceptions.PipelineChangedWarning, UserWarning)
     assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)
     assert persist.InconsistentVersionWarning is exceptions.InconsistentVersionWarning
     assert persist.IncompatibleVersionError is exceptions.IncompatibleVersionError
+    assert persist.PickledFileError is exceptions.PickledFileError
+    assert issubclass(exceptions.PickledFileError, ValueError)
     assert issubclass(exceptions.InconsistentVersionWarning, UserWarning)
     assert issubclass(exceptions.IncompatibleVersionError, ValueError)
     from skcath import _version

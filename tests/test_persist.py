@@ -77,21 +77,26 @@ def _set_saved_version(path, version):
             zf.writestr(name, content)
 
 
+@pytest.mark.parametrize("fmt", ["default", "joblib"])
 @pytest.mark.parametrize("residual", list(RESIDUALS))
 @pytest.mark.parametrize("backbone", list(BACKBONES))
-def test_joblib_round_trip_identical_predictions(data, fitted, tmp_path, backbone, residual):
+def test_round_trip_identical_predictions(data, fitted, tmp_path, backbone, residual, fmt):
     X, _ = data
     pipe = fitted(backbone, residual)
     expected = pipe.predict(X)
     path = tmp_path / "pipe.skcath"
     with warnings.catch_warnings():
         warnings.simplefilter("error", InconsistentVersionWarning)
-        persist.save(pipe, path)
-        loaded = persist.load(path)
+        if fmt == "default":
+            persist.save(pipe, path)
+            loaded = persist.load(path)
+        else:
+            persist.save(pipe, path, format="joblib")
+            loaded = persist.load(path, allow_pickle=True)
     assert loaded is not pipe
     assert_array_equal(loaded.predict(X), expected)
     header = persist.read_versions(path)
-    assert header["format"] == "joblib"
+    assert header["format"] == {"default": "skops", "joblib": "joblib"}[fmt]
     assert header["estimator"] == "sklearn.pipeline.Pipeline"
     assert header["versions"]["skcath"] == skcath.__version__
     assert header["versions"]["torch"] is not None
@@ -202,20 +207,33 @@ def test_skops_round_trip_backbones(data, fitted, tmp_path):
     expected = backbone_only.predict(X)
     path = tmp_path / "pdl.skcath"
     persist.save(backbone_only, path, format="skops")
-    untrusted = persist.get_untrusted_types(path)
-    assert untrusted == ["skcath.backbones._backbone.PDLBackbone"]
-    with pytest.raises(Exception, match="Untrusted types"):
-        persist.load(path)
-    loaded = persist.load(path, trusted=untrusted)
+    # skcath's own classes are trusted by default, so nothing is left to trust
+    assert "skcath.backbones._backbone.PDLBackbone" in persist.TRUSTED_TYPES
+    assert persist.get_untrusted_types(path) == []
+    loaded = persist.load(path)
     assert_array_equal(loaded.predict(X), expected)
 
     pipe = Pipeline([("backbone", PCCBackbone()), ("residual", NoResidual())]).fit(X, y)
     expected = pipe.predict(X)
     persist.save(pipe, path, format="skops")
+    assert persist.get_untrusted_types(path) == []
+    assert_array_equal(persist.load(path).predict(X), expected)
+
+
+class _OwnBackbone(PDLBackbone):
+    """A class of the user's own: not trusted until named."""
+
+
+def test_skops_refuses_a_type_of_the_users_own_until_trusted(data, tmp_path):
+    X, y = data
+    own = _OwnBackbone().fit(X)
+    path = tmp_path / "own.skcath"
+    persist.save(own, path)
     untrusted = persist.get_untrusted_types(path)
-    assert sorted(untrusted) == ["skcath.backbones._backbone.PCCBackbone",
-                                 "skcath.residuals._no_residual.NoResidual"]
-    assert_array_equal(persist.load(path, trusted=untrusted).predict(X), expected)
+    assert untrusted == [f"{__name__}._OwnBackbone"]
+    with pytest.raises(Exception, match="Untrusted types.*_OwnBackbone"):
+        persist.load(path)
+    assert_array_equal(persist.load(path, trusted=untrusted).predict(X), own.predict(X))
 
 
 def test_skops_refuses_what_it_cannot_store(fitted, tmp_path):
@@ -249,7 +267,7 @@ def test_bad_arguments_and_files(fitted, tmp_path):
     with pytest.raises(ValueError, match="compress: expected an int"):
         persist.save(pipe, tmp_path / "x", compress=12)
     path = tmp_path / "pipe.skcath"
-    persist.save(pipe, path)
+    persist.save(pipe, path, format="joblib")
     with pytest.raises(ValueError, match="trusted: only for skops-format files"):
         persist.load(path, trusted=["numpy.ndarray"])
     with pytest.raises(ValueError, match="only the skops format"):
@@ -274,6 +292,8 @@ def test_arguments_of_the_wrong_type_are_named(fitted, tmp_path):
         persist.load(path, allow_version_mismatch="yes")
     with pytest.raises(InvalidParameterError, match="'trusted' parameter of load"):
         persist.load(path, trusted="numpy.ndarray")
+    with pytest.raises(InvalidParameterError, match="'allow_pickle' parameter of load"):
+        persist.load(path, allow_pickle="yes")
     for function in (persist.read_versions, persist.get_untrusted_types):
         with pytest.raises(InvalidParameterError, match=f"'path' parameter of {function.__name__}"):
             function(None)
@@ -298,15 +318,8 @@ def test_skops_round_trip_residual_learners(data, fitted, tmp_path, residual):
     path = tmp_path / "pdl.skcath"
     persist.save(pipe, path, format="skops")
     assert persist.read_versions(path)["format"] == "skops"
-    untrusted = persist.get_untrusted_types(path)
-    learner = {"none": "skcath.residuals._no_residual.NoResidual",
-               "MLP": "skcath.residuals._estimators.MLPResidual",
-               "GRU": "skcath.residuals._estimators.GRUResidual"}[residual]
-    extra = [] if residual == "none" else ["skcath._torch_state.ResidualLearnerState"]
-    assert untrusted == sorted(["skcath.backbones._backbone.PDLBackbone", learner, *extra])
-    with pytest.raises(Exception, match="Untrusted types"):
-        persist.load(path)
-    loaded = persist.load(path, trusted=untrusted)
+    assert persist.get_untrusted_types(path) == []
+    loaded = persist.load(path)
     assert_array_equal(loaded.predict(X), expected)  # bit for bit
     assert type(loaded["residual"]) is type(pipe["residual"])
     own = pipe["residual"].get_params(deep=False)
@@ -433,11 +446,11 @@ def test_damaged_skops_payload_names_the_file(tmp_path):
 
 def test_damaged_joblib_payload_names_the_file(tmp_path):
     path = tmp_path / "none.skcath"
-    persist.save(NoResidual(), path)
+    persist.save(NoResidual(), path, format="joblib")
     _rewrite(path, **{"estimator.joblib": b"\x80\x04"})
     with pytest.raises(ValueError, match=r"none\.skcath' cannot be loaded: its "
                                          r"estimator\.joblib cannot be unpickled"):
-        persist.load(path)
+        persist.load(path, allow_pickle=True)
 
 
 def test_suffix_skcath_is_silent(tmp_path):
@@ -479,8 +492,9 @@ def test_round_trips_of_other_numbers_of_motors(tmp_path, n_motors, Est):
     pipe = Pipeline([("backbone", PolynomialBackbone()), ("residual", Est(**TINY))]).fit(Xn, y)
     assert pipe["residual"].n_motors_ == n_motors
     expected = pipe.predict(Xn)
-    persist.save(pipe, tmp_path / "joblib.skcath")
-    assert_array_equal(persist.load(tmp_path / "joblib.skcath").predict(Xn), expected)
+    persist.save(pipe, tmp_path / "joblib.skcath", format="joblib")
+    assert_array_equal(persist.load(tmp_path / "joblib.skcath", allow_pickle=True).predict(Xn),
+                       expected)
     pytest.importorskip("skops")
     path = tmp_path / "skops.skcath"
     persist.save(_copy(pipe), path, format="skops")

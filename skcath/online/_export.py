@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from ..residuals import GRUResidualModule
-from ._estimator import check_online_pipeline
+from ._pipeline import check_online_pipeline
 
 __all__ = ["export", "export_io"]
 
