@@ -240,9 +240,10 @@ def test_bad_samples_leave_the_state(pipelines, tmp_path):
     nan = samples[5].copy()
     nan[2] = np.nan
     for bad in (far, nan):
-        _, out, valid = session.run(None, {"sample": bad[None], "state": state,
-                                           "reset": np.array([False])})
+        tip, out, valid = session.run(None, {"sample": bad[None], "state": state,
+                                             "reset": np.array([False])})
         assert not valid[0]
+        assert np.isnan(tip).all()
         assert_allclose(out, state, rtol=0, atol=0)
     with pytest.raises(ValueError):
         est.step(*nan)

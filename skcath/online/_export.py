@@ -167,7 +167,7 @@ def export(pipeline, path, format="onnx", *, dtype=None):
     with the next sample; ``valid`` (1,) bool says whether ``step`` would
     accept the sample (all channels finite, motor angles within
     ``q_limit_`` of ``q_neutral_``): where it is False, ``state_out`` is
-    ``state`` unchanged and ``tip`` is not an estimate.
+    ``state`` unchanged and ``tip`` is NaN.
     :func:`~skcath.online.step_state` gives an estimator's current state in
     this layout. The ONNX model's metadata (``skcath.channels``,
     ``skcath.state_layout``, ``skcath.rate_hz``, ...) describe it; a

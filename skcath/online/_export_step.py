@@ -318,8 +318,10 @@ class WholeStep(nn.Module):
             new_state += hidden
         d = q - self.q_neutral
         valid = torch.isfinite(sample).all(dim=1) & ((d * d).sum(dim=1) <= self.limit2)
-        # a sample step would reject leaves the state as it was
-        return tip, torch.where(valid.unsqueeze(1), torch.cat(new_state, dim=1), state), valid
+        # a sample step would reject leaves the state as it was and gives a NaN tip
+        keep = valid.unsqueeze(1)
+        tip = torch.where(keep, tip, torch.full_like(tip, math.nan))
+        return tip, torch.where(keep, torch.cat(new_state, dim=1), state), valid
 
 
 def step_io(est):
