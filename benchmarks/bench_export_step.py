@@ -5,7 +5,7 @@ n_runs=1, n_motors=N, random_state=0)``, cached in the skcath data folder).
 Each pipeline is fitted on the run of shaft setting S02 (its sweep and its
 first ``--train-motion`` motion samples) for ``--epochs`` epochs, with the
 default network sizes (GRU hidden size 128, head 64, context 16; MLP
-hidden size 64); the weights only need to be real, not good. The run of
+hidden size 128); the weights only need to be real, not good. The run of
 setting S05 is the test run: an :class:`~skcath.online.OnlineEstimator` is
 started on its sweep and exported with ``skcath.online.export(est, path)``,
 and the graph is stepped by onnxruntime (CPU, one thread) through every
@@ -16,8 +16,8 @@ Parity: for every case (PCC and PDL, each with and without the play of
 motors; GRU, MLP and ``NoResidual``; two motors also without the torques, the
 residual with ``use_torque=False``), the largest difference of the graph's
 tip to ``pipe.predict`` (float32, as fitted) and to the float64
-``OnlineEstimator.step`` over the run's motion samples (mm), and the size of
-the ONNX file.
+``OnlineEstimator.step`` over the run's motion samples (mm), the size of
+the ONNX file and its number of nodes.
 
 Speed: for the PDL backbone with GRU, MLP and no residual, one step of the
 ONNX graph in onnxruntime (``intra_op_num_threads=1``; ``session.run`` with
@@ -46,6 +46,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import onnx
 from sklearn.pipeline import Pipeline
 from threadpoolctl import threadpool_limits
 
@@ -160,7 +161,8 @@ def parity(args, workdir):
         steps = np.array([est.step(*s) for s in samples])
         predicted = pipe.predict(run)[motion]
         rows.append((_label(case), len(samples), np.abs(tips - predicted).max(),
-                     np.abs(tips - steps).max(), os.path.getsize(path)))
+                     np.abs(tips - steps).max(), os.path.getsize(path),
+                     len(onnx.load(path).graph.node)))
         print(f"  {rows[-1][0]}: done", flush=True)
         if case[:2] == ("PDL", False) and case[3:] == (2, True):
             started[case[2]] = (pipe, run[~motion], samples, path)
@@ -215,17 +217,19 @@ def main(argv=None):
 
     print(f"torch {torch.__version__}, onnxruntime {onnxruntime.__version__}")
     print(f"command: {' '.join(sys.argv)}")
+    print("load average at the start: {:.1f} {:.1f} {:.1f}".format(*os.getloadavg()))
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as workdir, threadpool_limits(1), \
             warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rows, started = parity(args, workdir)
         timing = speed(started, args.steps)
+    print("load average at the end: {:.1f} {:.1f} {:.1f}".format(*os.getloadavg()))
     print("\n| case | motion samples | max abs(graph - predict) (mm) "
-          "| max abs(graph - step) (mm) | ONNX file (kB) |")
-    print("|---|---|---|---|---|")
-    for label, n, d_predict, d_step, size in rows:
-        print(f"| {label} | {n} | {d_predict:.1e} | {d_step:.1e} | {size / 1e3:.1f} |")
+          "| max abs(graph - step) (mm) | ONNX file (kB) | nodes |")
+    print("|---|---|---|---|---|---|")
+    for label, n, d_predict, d_step, size, nodes in rows:
+        print(f"| {label} | {n} | {d_predict:.1e} | {d_step:.1e} | {size / 1e3:.1f} | {nodes} |")
     print("\n| variant (PDL, two motors) | p50 (µs) | p99 (µs) |")
     print("|---|---|---|")
     for name, p50, p99 in timing:

@@ -169,9 +169,7 @@ def export(pipeline, path, format="onnx", *, dtype=None):
     ``q_limit_`` of ``q_neutral_``): where it is False, ``state_out`` is
     ``state`` unchanged and ``tip`` is NaN.
     :func:`~skcath.online.step_state` gives an estimator's current state in
-    this layout. The ONNX model's metadata (``skcath.channels``,
-    ``skcath.state_layout``, ``skcath.rate_hz``, ...) describe it; a
-    TorchScript archive holds them as the extra file ``skcath.json``.
+    this layout; the model's metadata (``skcath.state_layout``, ...) describe it.
 
     **A fitted pipeline** (``export(pipe, path)``): one step of its
     residual network, from the raw step features of one motor sample to the
