@@ -12,6 +12,7 @@ of a running estimator, the metadata, and bad input.
 The networks are tiny and train for one epoch on one shortened run.
 """
 
+import copy
 import json
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from sklearn.exceptions import NotFittedError
 from sklearn.pipeline import Pipeline
 
 from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone
+from skcath.exceptions import PipelineChangedWarning
 from skcath.online import OnlineEstimator, export, export_io, step_state
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
@@ -268,3 +270,15 @@ def test_export_errors(pipelines, tmp_path):
     with pytest.raises(ValueError, match="format must be one of"):
         export(est, tmp_path / "x.onnx", format="tflite")
     assert not (tmp_path / "x.onnx").exists()
+
+
+def test_export_steps_the_pipeline_as_it_was_at_start(pipelines, tmp_path):
+    pipe, run = pipelines(_key("pdl", "mlp"))
+    pipe = copy.deepcopy(pipe)
+    est, samples, motion = _started(pipe, run)
+    expected = pipe.predict(run)[motion]
+    pipe["residual"].set_params(clip=0.01)  # the pipeline changes after start
+    with pytest.warns(PipelineChangedWarning, match="exported"):
+        path = export(est, tmp_path / "step.onnx")
+    tips, _ = _stream(_session(path), samples)
+    assert_allclose(tips, expected, rtol=0, atol=PREDICT_TOL_MM)
