@@ -230,6 +230,10 @@ def test_metadata_describe_the_step(pipelines, tmp_path):
     assert json.loads(meta["skcath.rate_hz"]) == est.rate_hz_
     assert json.loads(meta["skcath.q_limit"]) == est.q_limit_
     assert export_io(est)[0]["state"] == (1, 4 + H)
+    motion = (run["phase"] == "motion").to_numpy()
+    unlimited = OnlineEstimator(pipe, q_margin=None, engine="numpy").start(run[~motion])
+    model = onnx.load(export(unlimited, tmp_path / "unlimited.onnx"))
+    assert json.loads({p.key: p.value for p in model.metadata_props}["skcath.q_limit"]) is None
 
 
 def test_bad_samples_leave_the_state(pipelines, tmp_path):

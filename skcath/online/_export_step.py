@@ -359,7 +359,8 @@ def step_metadata(est):
         "skcath.state_layout": json.dumps([[name, size] for name, size in parts]),
         "skcath.rate_hz": json.dumps(getattr(est, "rate_hz_", None)),
         "skcath.q_neutral": json.dumps([float(v) for v in est._qn]),
-        "skcath.q_limit": json.dumps(float(est.q_limit_)),
+        # null for q_margin=None: JSON has no infinity
+        "skcath.q_limit": json.dumps(None if math.isinf(est.q_limit_) else float(est.q_limit_)),
     }
 
 
