@@ -105,7 +105,7 @@ def _session(path):
 
 
 def _stream(session, samples, state=None):
-    """Tips (n, 3) of the graph stepped through ``samples``, from ``reset`` unless a state is given."""
+    """Tips (n, 3) of the graph stepped through ``samples``, from ``reset`` unless given a state."""
     size = session.get_inputs()[1].shape[1]
     reset = np.array([state is None])
     state = np.zeros((1, size)) if state is None else state

@@ -146,7 +146,7 @@ def export_io(pipeline):
 
 
 def export(pipeline, path, format="onnx", *, dtype=None):
-    """Write one streaming step to a file: a started estimator's whole step, or a pipeline's network.
+    """Write one streaming step to a file: an estimator's whole step, or a pipeline's network.
 
     **A started** :class:`OnlineEstimator` (``export(est, path)``): the
     whole step, in float64, with the run's calibration, play, sweep frame,
