@@ -1,6 +1,8 @@
-"""Export of the residual's stepping network as ONNX or TorchScript.
+"""Export of a streaming step as ONNX or TorchScript.
 
-The exported graph is one step of the residual learner of a fitted pipeline,
+Given a started :class:`OnlineEstimator`, :func:`export` writes its whole
+step (:mod:`skcath.online._export_step`). Given a fitted pipeline, the
+exported graph is one step of the residual learner of a fitted pipeline,
 from the raw step features to the clipped residual in the base frame. The
 normalisation statistics, ``sigma_e`` and the clip bound are constants of the
 graph; what depends on the run (the sweep frame ``R_SB`` and the context
@@ -19,6 +21,8 @@ import torch
 from torch import nn
 
 from ..residuals import GRUResidualModule
+from ._estimator import OnlineEstimator
+from ._export_step import export_step, step_io
 from ._pipeline import check_online_pipeline
 
 __all__ = ["export", "export_io"]
@@ -98,21 +102,29 @@ def export_io(pipeline):
 
     Parameters
     ----------
-    pipeline : sklearn.pipeline.Pipeline
-        Fitted pipeline with an :class:`~skcath.residuals.MLPResidual` or
-        :class:`~skcath.residuals.GRUResidual` as last step.
+    pipeline : OnlineEstimator or sklearn.pipeline.Pipeline
+        A started :class:`OnlineEstimator` (its whole step), or a fitted
+        pipeline with an :class:`~skcath.residuals.MLPResidual` or
+        :class:`~skcath.residuals.GRUResidual` as last step (its network).
 
     Returns
     -------
     inputs : dict
-        Name -> shape, in the order the graph takes them: ``features``
+        Name -> shape, in the order the graph takes them. For an
+        estimator: ``sample`` ``(1, n_channels)``, ``state`` ``(1,
+        state_size)``, ``reset`` ``(1,)`` (see :func:`export`). For a
+        pipeline: ``features``
         ``(1, n_features)`` (``3N + 3`` for ``N`` motors, ``2N + 3`` without
         torques); ``rotation`` ``(3, 3)`` (``frame="sweep"``
         only); ``context`` ``(1, context_size)`` (``use_context=True`` only);
         ``hidden`` ``(num_layers, 1, hidden_size)`` (GRU only).
     outputs : dict
-        ``residual`` ``(1, 3)``, and ``hidden_out`` for the GRU.
+        For an estimator: ``tip`` ``(1, 3)``, ``state_out`` ``(1,
+        state_size)``, ``valid`` ``(1,)``. For a pipeline: ``residual``
+        ``(1, 3)``, and ``hidden_out`` for the GRU.
     """
+    if isinstance(pipeline, OnlineEstimator):
+        return step_io(pipeline)
     _, residual = check_online_pipeline(pipeline)
     if residual is None:
         raise ValueError(
@@ -134,10 +146,34 @@ def export_io(pipeline):
     return inputs, outputs
 
 
-def export(pipeline, path, format="onnx", *, dtype="float32"):
-    """Write one step of the pipeline's residual network to a file.
+def export(pipeline, path, format="onnx", *, dtype=None):
+    """Write one streaming step to a file: an estimator's whole step, or a pipeline's network.
 
-    The graph maps the raw step features of one motor sample to the
+    **A started** :class:`OnlineEstimator` (``export(est, path)``): the
+    whole step, in float64, with the run's calibration, play, sweep frame,
+    context and clip taken from ``start`` and written into the graph. The
+    graph does what ``est.step`` does for an accepted sample, at the model's
+    rate (one model step per call):
+
+    ``(sample, state, reset) -> (tip, state_out, valid)``
+
+    ``sample`` (1, n_channels) float64 holds the channels of ``channels_``
+    (motor angles ``q1 .. qN``, deg, then the torques ``tau1 .. tauN`` when
+    the recordings have them); ``state`` (1, state_size) float64 is what the
+    step carries (the previous motor angles, the played angles with
+    ``hysteresis="play"``, the GRU's hidden states); with ``reset`` (1,)
+    bool set, the graph ignores ``state`` and starts from the state right
+    after ``start`` (as ``est.reset()``). ``tip`` (1, 3) float64 is the
+    tip in the base frame (mm); ``state_out`` is the state to pass back
+    with the next sample; ``valid`` (1,) bool says whether ``step`` would
+    accept the sample (all channels finite, motor angles within
+    ``q_limit_`` of ``q_neutral_``): where it is False, ``state_out`` is
+    ``state`` unchanged and ``tip`` is NaN.
+    :func:`~skcath.online.step_state` gives an estimator's current state in
+    this layout; the model's metadata (``skcath.state_layout``, ...) describe it.
+
+    **A fitted pipeline** (``export(pipe, path)``): one step of its
+    residual network, from the raw step features of one motor sample to the
     residual (mm, base frame, clipped), for a GRU also the hidden state to
     the next one:
 
@@ -152,12 +188,15 @@ def export(pipeline, path, format="onnx", *, dtype="float32"):
     ``R_SB`` and ``context`` its sweep context ``z``
     (``OnlineEstimator.rotation_`` and ``.context_`` after ``start``);
     ``hidden`` starts at zeros for every motion sequence. The tip is the
-    nominal tip plus ``residual``. :func:`export_io` gives the shapes.
+    nominal tip plus ``residual``. The backbone is not part of this graph.
+
+    :func:`export_io` gives the shapes of either graph.
 
     Parameters
     ----------
-    pipeline : sklearn.pipeline.Pipeline
-        Fitted pipeline whose last step is an
+    pipeline : OnlineEstimator or sklearn.pipeline.Pipeline
+        A started estimator (any backbone, with or without a residual
+        network), or a fitted pipeline whose last step is an
         :class:`~skcath.residuals.MLPResidual` or
         :class:`~skcath.residuals.GRUResidual`.
     path : str or os.PathLike
@@ -167,14 +206,28 @@ def export(pipeline, path, format="onnx", *, dtype="float32"):
         written as elementary ``MatMul``/``Sigmoid``/``Tanh`` operations of a
         ``GRUCell``, not as an ONNX ``GRU`` node) or a TorchScript archive for
         ``torch.jit.load``.
-    dtype : {"float32", "float64"}, default="float32"
-        Precision of the weights and of every input and output.
+    dtype : {"float32", "float64"} or None, default=None
+        Precision of the weights and of every floating input and output.
+        None means "float64" for an estimator (the only precision of its
+        whole step) and "float32" for a pipeline.
 
     Returns
     -------
     path : str
         The file written.
     """
+    if isinstance(pipeline, OnlineEstimator):
+        if dtype not in (None, "float64"):
+            raise ValueError(
+                "dtype must be 'float64' (or None) to export an OnlineEstimator's whole step, "
+                f"which runs in float64; got {dtype!r}."
+            )
+        return export_step(pipeline, path, format)
+    return _export_network(pipeline, path, format, "float32" if dtype is None else dtype)
+
+
+def _export_network(pipeline, path, format, dtype):
+    """:func:`export` of a fitted pipeline: its residual network's step."""
     if format not in FORMATS:
         raise ValueError(f"format must be one of {list(FORMATS)}; got {format!r}.")
     if dtype not in ("float32", "float64"):
