@@ -17,6 +17,7 @@ accept the sample (finite, within the sweep's range of motor angles).
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -385,11 +386,13 @@ def export_step(est, path, format="onnx"):
             traced = torch.jit.trace(model, examples)
             torch.jit.save(traced, path, _extra_files={"skcath.json": json.dumps(metadata)})
             return path
-        torch.onnx.export(model, examples, path, input_names=list(inputs),
+        buffer = io.BytesIO()
+        torch.onnx.export(model, examples, buffer, input_names=list(inputs),
                           output_names=list(outputs), opset_version=17, dynamo=False)
     import onnx
 
-    graph = onnx.load(path)
+    # The graph just exported, parsed from memory: no file is read back.
+    graph = onnx.ModelProto.FromString(buffer.getvalue())
     for key, value in metadata.items():
         graph.metadata_props.add(key=key, value=value)
     onnx.save(graph, path)
