@@ -298,11 +298,10 @@ def test_reproduce_prints_tables_and_writes_files(reproduce_data, tmp_path, monk
         )
         assert table_1.loc[name, "pooled"] == pytest.approx(runs.mean(), rel=0, abs=5e-5)
     # the learned method, even this tiny, is far from a constant: the mean tip of
-    # each catheter's motion rows (measured: MEASURE)
+    # each catheter's motion rows (measured: 7.2 mm against 20.1 mm, pooled)
     motion = (Xt["phase"] == "motion").to_numpy()
     mean_tip = pd.DataFrame(yt[motion]).groupby(Xt.loc[motion, "catheter"].astype(str).to_numpy()).mean()
     constant = per_run_rmse(yt, mean_tip.loc[Xt["catheter"].astype(str)].to_numpy(), Xt).mean()
-    print("CLI", table_1.to_dict(), constant)
     assert table_1.loc["PDL+GRU", "pooled"] < 0.5 * constant
     run_rmse = pd.read_csv(out / TABLE_FILES["run_rmse"])
     expected_runs = set(X.loc[X["setting"].astype(str) != "S00", "run"].astype(str))
