@@ -311,15 +311,25 @@ def test_transform_output_can_be_transformed_again(data, reference):
 
 
 @pytest.mark.parametrize("Est", [PDLBackbone])
-def test_sweep_dropouts_are_skipped(Est, data):
+def test_sweep_dropouts_are_skipped(Est, data, reference):
     # NaN references on some sweep rows (tracker dropouts) are allowed
-    X, _ = data
+    X, y = data
     rng = np.random.default_rng(3)
     X = X.copy()
     lost = (X["phase"] == "sweep").to_numpy() & (rng.random(len(X)) < 0.05)
     X.loc[lost, REF] = np.nan
     pred = Est().fit(X).predict(X)
     assert pred.shape == (len(X), 3) and np.isfinite(pred).all()
+    # the calibration on the 95 % left is close to the one on the whole sweep:
+    # the motion tips move by a small fraction of the backbone's own error
+    # (measured: 0.060 mm RMS against 7.47 mm; bound 2 %, 0.15 mm), and the
+    # error does not grow by more than 1 % (measured: 7.46 mm)
+    full = reference[Est]
+    motion = (X["phase"] == "motion").to_numpy()
+    moved = np.sqrt(np.mean(np.sum((pred[motion] - full[motion]) ** 2, axis=1)))
+    error = mean_per_run_rmse(y, full, X)
+    assert 0.0 < moved < 0.02 * error
+    assert mean_per_run_rmse(y, pred, X) < 1.01 * error
 
 
 def test_predict_before_fit_raises(data):

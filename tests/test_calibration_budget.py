@@ -311,7 +311,23 @@ def test_learned_budgets_on_a_sweep_of_four_rays(bench):
         X4, y4, rays=(3,), strides=(20,), n_rays_swept=4, schedule=_tiny_schedule(),
         catheters=["C1"], exclude_settings=["S00"], n_jobs=1,
     )
-    assert np.isfinite(result.summary[["PCC", "PDL", "PDL+GRU"]].to_numpy()).all()
+    table = result.summary
+    assert np.isfinite(table[["PCC", "PDL", "PDL+GRU"]].to_numpy()).all()
+    assert list(zip(table["n_rays"], table["stride"])) == [(4, 1), (3, 1), (4, 20)]
+    # the full-sweep budget is each backbone calibrated on the 4 rays as recorded
+    # (90 degrees apart), computed here on the evaluated runs
+    evaluated = ((X4["catheter"].astype(str) == "C1") & (X4["setting"].astype(str) != "S00")).to_numpy()
+    Xe, ye = X4[evaluated], y4[evaluated]
+    sweep = Xe[(Xe["phase"] == "sweep").to_numpy()]
+    assert table.loc[0, "sweep_samples"] == sweep.groupby("run", observed=True).size().median()
+    for name, Backbone in (("PCC", PCCBackbone), ("PDL", PDLBackbone)):
+        pred = Backbone(n_rays=4, ray_spacing_deg=90.0).fit(Xe).predict(Xe)
+        assert table.loc[0, name] == pytest.approx(mean_per_run_rmse(ye, pred, Xe), rel=1e-9)
+    # PDL+GRU, trained on the 4-ray sweeps, is far from the mean tip of the
+    # evaluated runs' motion rows (measured: 9.4 mm against 21.6 mm)
+    motion = (Xe["phase"] == "motion").to_numpy()
+    constant = mean_per_run_rmse(ye, np.broadcast_to(np.nanmean(ye[motion], axis=0), ye.shape), Xe)
+    assert table.loc[0, "PDL+GRU"] < 0.6 * constant
 
 
 @pytest.mark.parametrize(

@@ -252,7 +252,7 @@ def test_reproduce_prints_tables_and_writes_files(reproduce_data, tmp_path, monk
     from skcath import protocol
     from skcath.protocol._report import TABLE_FILES
 
-    path, X, _ = reproduce_data
+    path, X, y = reproduce_data
     monkeypatch.setattr(protocol, "FULL", _tiny_schedule("tiny-full"))
     import importlib.util
 
@@ -280,6 +280,29 @@ def test_reproduce_prints_tables_and_writes_files(reproduce_data, tmp_path, monk
     assert list(table_1.index) == ["PCC", "PDL", "PDL+GRU"]
     assert list(table_1.columns) == ["C1", "C2", "pooled"]
     assert np.isfinite(table_1.to_numpy()).all()
+    # the backbones learn nothing: their rows are the mean per-run RMSE of each
+    # backbone calibrated on every run's own sweep, computed here from the data
+    # (the file holds 4 decimals)
+    from skcath.backbones import PCCBackbone, PDLBackbone
+    from skcath.metrics import per_run_rmse
+
+    tested = (X["setting"].astype(str) != "S00").to_numpy()
+    Xt, yt = X[tested], y[tested]
+    catheter_of = Xt.groupby("run", observed=True)["catheter"].first().astype(str)
+    for name, Backbone in (("PCC", PCCBackbone), ("PDL", PDLBackbone)):
+        runs = per_run_rmse(yt, Backbone().fit(Xt).predict(Xt), Xt)
+        runs.index = runs.index.astype(str)
+        by_catheter = runs.groupby(catheter_of.reindex(runs.index).to_numpy()).mean()
+        assert table_1.loc[name, ["C1", "C2"]].to_numpy() == pytest.approx(
+            by_catheter[["C1", "C2"]].to_numpy(), rel=0, abs=5e-5
+        )
+        assert table_1.loc[name, "pooled"] == pytest.approx(runs.mean(), rel=0, abs=5e-5)
+    # the learned method, even this tiny, is far from a constant: the mean tip of
+    # each catheter's motion rows (measured: 7.2 mm against 20.1 mm, pooled)
+    motion = (Xt["phase"] == "motion").to_numpy()
+    mean_tip = pd.DataFrame(yt[motion]).groupby(Xt.loc[motion, "catheter"].astype(str).to_numpy()).mean()
+    constant = per_run_rmse(yt, mean_tip.loc[Xt["catheter"].astype(str)].to_numpy(), Xt).mean()
+    assert table_1.loc["PDL+GRU", "pooled"] < 0.5 * constant
     run_rmse = pd.read_csv(out / TABLE_FILES["run_rmse"])
     expected_runs = set(X.loc[X["setting"].astype(str) != "S00", "run"].astype(str))
     assert set(run_rmse["run"]) == expected_runs

@@ -331,8 +331,13 @@ def test_errors_name_the_argument():
 # On version 5 the loops of the unit of seed 3 at the high bend S16 exceeded 0.6
 # of the spread (7.32 / 12.1 mm, 0.604); version 6 pulls that unit's parameters
 # towards the family's middle and the ratio is 0.594, just inside the bound.
-@pytest.mark.parametrize("seed, setting", [(0, "S00"), (1, "S05"), (2, "S12"), (3, "S16")])
-def test_fits_simulated_sweep(seed, setting):
+# Each case is held to its measured ratio plus a quarter (at most 0.6): a fit a
+# quarter worse than measured fails.
+@pytest.mark.parametrize(
+    "seed, setting, measured_ratio",
+    [(0, "S00", 0.25), (1, "S05", 0.31), (2, "S12", 0.58), (3, "S16", 0.594)],
+)
+def test_fits_simulated_sweep(seed, setting, measured_ratio):
     q, p = simulated_sweep(seed, setting, dropout_rate=0.02)
     prm, info = calibrate_pcc(q, p, return_info=True)
     assert info["converged"]
@@ -340,7 +345,7 @@ def test_fits_simulated_sweep(seed, setting):
     # outward and return strokes: the fit must still explain most of the motion
     keep = ~np.isnan(p).any(axis=1)
     spread = np.sqrt(np.mean(np.sum((p[keep] - p[keep].mean(axis=0)) ** 2, axis=1)))
-    assert 0.3 < info["rmse_mm"] < 0.6 * spread
+    assert 0.3 < info["rmse_mm"] < min(1.25 * measured_ratio, 0.6) * spread
     assert 30.0 < prm.L < 90.0
     # the fit is a least-squares minimum: no small change of the free
     # parameters (C, u0, L) lowers the sweep error

@@ -44,11 +44,18 @@ def test_flags_the_change_and_not_the_unchanged_run(runs):
     assert quiet.statistic.max() < detector.threshold
 
     sweep, q, tau, t = _split(changed)
-    result = ShaftChangeDetector().start(sweep).detect(q, tau)
+    detector = ShaftChangeDetector().start(sweep)
+    result = detector.detect(q, tau)
     t_change = changed.runs.loc[0, "change_time_s"]
     assert result.first_alarm >= 0
+    # the first alarm is the first sample whose statistic crosses the threshold
+    assert result.statistic[result.first_alarm] > detector.threshold
+    assert (result.statistic[: result.first_alarm] <= detector.threshold).all()
     delay = t[result.first_alarm] - t_change
-    assert 0.0 <= delay < 60.0  # measured: 9.5 s
+    # measured: 57.3 s on simulator version 6 (9.5 s on version 4; the wider play
+    # of versions 5 and 6 hides part of the torque signature, see the xfail
+    # below); the bound leaves 2.7 s, so a slower detector fails
+    assert 0.0 <= delay < 60.0
     # before the change, the run and the statistic are those of the unchanged run
     before = t < t_change
     assert_array_equal(result.statistic[before], quiet.statistic[before])

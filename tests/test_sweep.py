@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.testing import assert_array_equal
 from sklearn.utils._param_validation import InvalidParameterError
 
 from skcath.datasets import simulate_run
@@ -385,7 +386,12 @@ def test_references_ok_with_dropouts(sweep):
     q, rays, ref = sweep
     ref = ref.copy()
     ref[np.random.default_rng(0).random(len(ref)) < 0.3] = np.nan
-    check_sweep_references(ref, rays, run="R1")
+    before = ref.copy()
+    assert check_sweep_references(ref, rays, run="R1") is None
+    assert_array_equal(ref, before)  # NaN where they were, nothing filled in
+    # the dropouts are counted: about 70 % of each ray is left, below a bound of 80 %
+    with pytest.raises(ValueError, match=r"Too few finite reference tip positions in run 'R1'"):
+        check_sweep_references(ref, rays, run="R1", min_fraction=0.8)
 
 
 def test_references_missing_on_a_whole_ray(sweep):

@@ -167,7 +167,11 @@ def test_nan_reference_is_a_dropout_and_allowed():
 def test_require_sweep_false_allows_motion_only_runs():
     X, _ = make_recordings()
     X = X[~((X["run"] == "r2") & (X["phase"] == "sweep"))]
-    check_recordings(X, require_sweep=False)
+    X_checked, _ = check_recordings(X, require_sweep=False)
+    pd.testing.assert_frame_equal(X_checked, X)  # every row kept, r2 without a sweep
+    # the same runs are refused when a sweep is required, naming the run
+    with pytest.raises(ValueError, match="r2"):
+        check_recordings(X)
 
 
 def test_columns_subset_skips_unlisted_channels():
@@ -307,7 +311,14 @@ def test_time_not_increasing_names_run_and_rows(delta):
 
 def test_time_restarting_in_the_next_run_is_fine():
     X, _ = make_recordings()  # every run starts at t = 0.5 s
-    check_recordings(X)
+    starts = X.groupby("run", observed=True)["t"].first()
+    assert starts.nunique() == 1 and len(starts) > 1  # the clock restarts in every run
+    X_checked, _ = check_recordings(X)
+    pd.testing.assert_frame_equal(X_checked, X)
+    # the same restart inside one run is refused: the check is per run
+    restarted = set_value(X, "r1", 4, "t", starts["r1"])
+    with pytest.raises(ValueError, match="strictly increasing.*run 'r1'"):
+        check_recordings(restarted)
 
 
 def test_time_order_is_checked_within_interleaved_runs():
