@@ -768,13 +768,13 @@ def test_tables_and_figures_read_their_methods_from_the_registry():
         "sweep adaptation (setting held out)": ("PDL+GRU", "PDL+GRU+adapt"),
         "sweep adaptation (catheter held out)": ("PDL+GRU (LOCO)", "PDL+GRU+adapt (LOCO)"),
     }
-    from skcath.protocol import _figures
+    from skcath.protocol import _figure_tools, _figures
 
     assert _figures.CONDITIONING_METHODS == (
         "PDL+GRU", "PDL+GRU (no torque)", "PDL+GRU (no context)", "PDL+GRU (no torque, no context)",
     )
     assert _figures.NEW_CATHETER_METHODS == ("PDL+GRU", "PDL+GRU (LOCO)")
-    assert _figures._method_colours(["PDL+MLP", "mine"]) == {"PDL+MLP": "tab:red", "mine": "tab:cyan"}
+    assert _figure_tools._method_colours(["PDL+MLP", "mine"]) == {"PDL+MLP": "tab:red", "mine": "tab:cyan"}
     with pytest.raises(InvalidParameterError, match="'role' parameter"):
         methods_with_role("table_9")
 

@@ -27,7 +27,7 @@ from .._validation import check_recordings
 from ..metrics import per_run_rmse
 from ..model_selection import exclusion_set
 from ..sweep import reduce_sweep
-from ._figures import _new_figure
+from ._figure_tools import _new_figure
 from ._methods import METHODS, backbone_method, methods_with_role
 from ._protocol import (
     calibrate_backbones,
