@@ -10,29 +10,30 @@ number of motors and at any sampling rate, and the readers of
 Algorithm
 ---------
 1. Neutral: the motor angles at rest at the start of the run (the median of
-   the samples of its first ``min_rest_s`` seconds), refined at the end as
-   the mean of the sweep's samples at neutral. ``rho = |q - q_neutral|``
-   (degrees, over all motors). The sweep amplitude ``A`` is the largest
-   ``rho`` of the first excursion beyond ``min_amplitude_deg``; samples with
-   ``rho <= max(neutral_fraction * A, 4 sigma)`` are at neutral (``sigma``:
-   encoder noise estimated from second differences).
-2. Excursions: the stretches away from neutral, in time order. Those that
-   stay under ``max(min_amplitude_deg, A / 4)`` are flicker and are skipped.
-   The others are rays while they go out along one direction and back: the
-   direction of every sample of the far part (``rho`` above half the
-   excursion's peak) lies within ``max_turn_deg`` of their mean direction,
-   the peak is within a factor of two of the largest ray so far, and the
-   motors come back to neutral and rest there for at least ``min_rest_s``
-   seconds before they move again.
+   the samples of its first ``min_rest_s`` seconds), refined in a second
+   pass as the mean of the sweep's samples at neutral. ``rho = |q -
+   q_neutral|`` (degrees, over all motors). The sweep amplitude ``A`` is
+   the largest ``rho`` of the first excursion beyond ``min_amplitude_deg``;
+   samples with ``rho <= max(neutral_fraction * A, 4 sigma)`` are at
+   neutral (``sigma``: encoder noise estimated from second differences).
+2. Excursions: the stretches away from neutral, in time order, except
+   those within 4 ``sigma`` of the threshold (noise). Each is a ray while it
+   goes out along one direction and straight back: the direction of every
+   sample of its far part (``rho`` above half its peak) lies within
+   ``max_turn_deg`` of their mean; ``rho`` rises to the peak and falls back
+   without turning back by more than a tenth of the peak; the peak is
+   within 25 % of ``A`` and the duration within 50 % of the first ray's;
+   and the motors rest at neutral for at least ``min_rest_s`` seconds
+   before they move again.
 3. End: the first excursion that is not a ray starts the motion. The sweep
-   ends at the last sample of the rest before it that is still at the rest's
-   level (within 4 ``sigma`` of its median ``rho``), since the motion
-   leaves neutral gradually; with no such excursion the whole recording is
-   the sweep.
+   ends with the rest before it, at the last sample still at the rest's
+   position (the motion leaves neutral gradually); with no such excursion
+   the whole recording is the sweep.
 
-The random walk that follows the sweep in the benchmark's runs goes from
-target to target without coming back to rest at neutral along a straight
-line, so none of these criteria depends on the data set.
+These are properties of a sweep (rays of one amplitude and speed, out from
+neutral and back, with a rest after each), not of a data set: the motion
+that follows, in the benchmark a random walk from target to target, does
+not go out and straight back to rest at neutral.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ import numpy as np
 import pandas as pd
 from sklearn.utils._param_validation import Interval, validate_params
 
-from ._format import PHASE, RUN, TIME
+from ._format import RUN, TIME
 from ._validation import CUT_RUN_HINT, motor_columns, to_array
 
 __all__ = ["N_SWEEP_ATTR", "SweepEnd", "find_sweep_end", "n_sweep_hint"]

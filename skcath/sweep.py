@@ -9,8 +9,10 @@ belongs to which ray. :func:`find_rays` recovers this from the motor angles
 only (no simulator labels), tolerating a non-zero neutral, encoder noise, an
 arbitrary first direction, slightly uneven directions and any ray order;
 :func:`check_sweep_references` checks that the EM reference tip positions of a
-sweep are usable for the calibration. :func:`reduce_sweep` keeps only some rays
-or samples of every run's sweep, to study a smaller calibration budget; the
+sweep are usable for the calibration. :func:`find_sweep_end` finds where the
+sweep of a run ends, for any number of motors (a recording without a
+``phase`` column, ``docs/sweep_recording.rst``). :func:`reduce_sweep` keeps
+only some rays or samples of every run's sweep, to study a smaller calibration budget; the
 rays of such a sweep are found by passing the spacing of the full layout,
 ``ray_spacing_deg``, to :func:`find_rays` (and to the backbones).
 
