@@ -21,10 +21,16 @@ settings held out within each catheter, ``S00`` never evaluated) runs on the
 default benchmark read both ways, and the second table compares their mean
 per-run RMSE per catheter (``--no-protocol`` skips it).
 
+``--instruments`` prints only the detection on the simulated instruments of
+one and three motors and on the two-motor runs at 40 Hz (one run per
+setting of each catheter, ``make_benchmark(n_runs=1, n_motors=...)`` and
+``make_benchmark(n_runs=1, rate_hz=40.0)``).
+
 Usage (from the repository root)::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py --no-protocol
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py --instruments
 
 The benchmark comes from the cache (``$SKCATH_DATA``, else ``~/skcath_data``;
 generated on the first call). The tables are printed in Markdown.
@@ -42,6 +48,7 @@ import pandas as pd
 from skcath.datasets import make_benchmark
 from skcath.io import read_recordings
 from skcath.protocol import QUICK, compute_tables, run_protocol
+from skcath.sweep import find_sweep_end
 
 _TARGET = ("p_x", "p_y", "p_z")
 
@@ -116,12 +123,42 @@ def _protocol_rmse(X, y, n_jobs):
     return compute_tables(result, n_bootstrap=10)["table_1"], result.elapsed
 
 
+def _instrument_rows():
+    """Detection on the simulated instruments of one and three motors, and at 40 Hz.
+
+    One run per setting of the four catheters (``n_runs=1``), each run's
+    motor angles and times passed to :func:`find_sweep_end` directly.
+    """
+    rows = []
+    for label, kwargs in (("1 motor, 10 Hz", {"n_motors": 1}), ("3 motors, 10 Hz", {"n_motors": 3}),
+                          ("2 motors, 40 Hz", {"rate_hz": 40.0})):
+        data = make_benchmark(n_runs=1, **kwargs)
+        rate = kwargs.get("rate_hz", 10.0)
+        diffs, rays = [], set()
+        for _, part in data.X.groupby("run", observed=True, sort=False):
+            end = find_sweep_end(part.drop(columns="phase"))
+            diffs.append(end.n_sweep - int((part["phase"] == "sweep").sum()))
+            rays.add(end.n_rays)
+        diffs = np.asarray(diffs)
+        rows.append((label, len(diffs), int((diffs == 0).sum()), int(np.abs(diffs).max()),
+                     float(np.abs(diffs).max() / rate), sorted(rays)))
+    print("| instrument | runs | exact | max abs(detected - true) (samples) | (s) | rays found |")
+    print("|---|---|---|---|---|---|")
+    for label, n, exact, worst, worst_s, rays in rows:
+        print(f"| {label} | {n} | {exact} | {worst} | {worst_s:.1f} | {rays} |")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--no-protocol", action="store_true",
                         help="skip the PDL+GRU comparison")
     parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
+    parser.add_argument("--instruments", action="store_true",
+                        help="only the detection on one and three motors and at 40 Hz")
     args = parser.parse_args(argv)
+    if args.instruments:
+        _instrument_rows()
+        return
 
     start = time.perf_counter()
     default = make_benchmark()
