@@ -24,13 +24,17 @@ per-run RMSE per catheter (``--no-protocol`` skips it).
 ``--instruments`` prints only the detection on the simulated instruments of
 one and three motors and on the two-motor runs at 40 Hz (one run per
 setting of each catheter, ``make_benchmark(n_runs=1, n_motors=...)`` and
-``make_benchmark(n_runs=1, rate_hz=40.0)``).
+``make_benchmark(n_runs=1, rate_hz=40.0)``). ``--noise`` prints only the
+detection on the two-motor runs of ``make_benchmark(n_runs=1)`` with white
+noise of standard deviation 0.01, 0.05 and 0.2 degrees added to the motor
+angles (seed 0).
 
 Usage (from the repository root)::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py --no-protocol
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py --instruments
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep_detection.py --noise
 
 The benchmark comes from the cache (``$SKCATH_DATA``, else ``~/skcath_data``;
 generated on the first call). The tables are printed in Markdown.
@@ -148,6 +152,25 @@ def _instrument_rows():
         print(f"| {label} | {n} | {exact} | {worst} | {worst_s:.1f} | {rays} |")
 
 
+def _noise_rows(sigmas=(0.01, 0.05, 0.2), random_state=0):
+    """Detection on two-motor runs with white encoder noise added to the motor angles (deg)."""
+    data = make_benchmark(n_runs=1)
+    rng = np.random.default_rng(random_state)
+    print("| noise sigma (deg) | runs | exact | max abs(detected - true) (samples) | (s) "
+          "| detected - true, range (samples) |")
+    print("|---|---|---|---|---|---|")
+    for sigma in sigmas:
+        diffs = []
+        for run, part in data.X.groupby("run", observed=True, sort=False):
+            q = part[["q1", "q2"]].to_numpy() + rng.normal(0.0, sigma, (len(part), 2))
+            end = find_sweep_end(q, part["t"].to_numpy(), run=run)
+            diffs.append(end.n_sweep - int((part["phase"] == "sweep").sum()))
+        diffs = np.asarray(diffs)
+        worst = int(np.abs(diffs).max())
+        print(f"| {sigma:g} | {len(diffs)} | {int((diffs == 0).sum())} | {worst} | "
+              f"{worst / 10.0:.1f} | {diffs.min()} to {diffs.max()} |")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--no-protocol", action="store_true",
@@ -155,9 +178,14 @@ def main(argv=None):
     parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
     parser.add_argument("--instruments", action="store_true",
                         help="only the detection on one and three motors and at 40 Hz")
+    parser.add_argument("--noise", action="store_true",
+                        help="only the detection with encoder noise added to the motor angles")
     args = parser.parse_args(argv)
     if args.instruments:
         _instrument_rows()
+        return
+    if args.noise:
+        _noise_rows()
         return
 
     start = time.perf_counter()

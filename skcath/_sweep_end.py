@@ -277,7 +277,8 @@ def _scan(q, t, q_neutral, params, run):
             f"|q - q_neutral| is {rho.max():.3g} deg; expected a sweep whose rays reach at "
             f"least min_amplitude_deg={params['min_amplitude_deg']:g} deg."
         )
-    back = np.flatnonzero(rho[moving[0]:] <= params["min_amplitude_deg"])
+    # the first ray: from there until rho is back under half min_amplitude_deg
+    back = np.flatnonzero(rho[moving[0]:] <= 0.5 * params["min_amplitude_deg"])
     first_end = len(rho) if not back.size else moving[0] + int(back[0])
     amplitude = float(rho[moving[0]:first_end].max())
     threshold = max(params["neutral_fraction"] * amplitude, _NOISE_SIGMAS * sigma)
@@ -326,18 +327,25 @@ def _rest_end(q, rest_start, motion_start, min_rest):
     """One past the last sample of the rest before the motion.
 
     Within ``rest_start .. motion_start - 1`` (the return's end, the rest and
-    the start of the motion, all within the neutral threshold), the samples
-    at rest are those whose distance to the median motor angles of the
-    window is within 4 ``sigma`` of the median distance (``sigma``: the
-    encoder noise of these samples, which are mostly still);
+    the start of the motion, all within the neutral threshold), the rest's
+    position is the median of the slowest samples (speed within 4 ``sigma``
+    of its lower quartile; ``sigma``: the encoder noise of the window), and
+    the samples at rest are those whose distance to it is within 4 ``sigma``
+    of the slow samples' median distance;
     stretches of them separated by up to two samples join. The rest is the
     last such stretch of at least ``min_rest`` samples (the longest if none
     is that long): the motion leaves it gradually, and may cross neutral
     before it leaves the threshold.
     """
     window = q[rest_start:motion_start]
-    dist = np.linalg.norm(window - np.median(window, axis=0), axis=1)
-    still = dist <= np.median(dist) + _NOISE_SIGMAS * _rest_noise(window)
+    sigma = _rest_noise(window)
+    # the rest's position: the median of the slowest samples (the rest may be
+    # the smaller part of the window when the motion starts with a small step)
+    speed = np.linalg.norm(np.gradient(window, axis=0), axis=1) if len(window) > 1 \
+        else np.zeros(len(window))
+    slow = speed <= np.quantile(speed, 0.25) + _NOISE_SIGMAS * sigma
+    dist = np.linalg.norm(window - np.median(window[slow], axis=0), axis=1)
+    still = dist <= np.median(dist[slow]) + _NOISE_SIGMAS * sigma
     starts, stops = _stretches(still)
     if not starts.size:
         return rest_start
