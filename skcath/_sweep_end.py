@@ -193,6 +193,11 @@ def _run_arrays(X, t, rate_hz, run):
             f"The motor angles{_of_run(run)} must have shape (n,) or (n, n_motors) "
             f"(degrees); got shape {q.shape}."
         )
+    if len(q) < 3:
+        raise ValueError(
+            f"The motor angles{_of_run(run)} have {len(q)} sample(s); finding the sweep end "
+            "needs at least 3."
+        )
     if not np.isfinite(q).all():
         first = int(np.flatnonzero(~np.isfinite(q).all(axis=1))[0])
         raise ValueError(
@@ -231,9 +236,13 @@ def _ray_check(k, a, b, d, rho, t, rest_stops, params, first, sigma):
     peak = float(r.max())
     far = r > _FAR_FRACTION * peak
     u = (d[a:b][far] / r[far, None]).mean(axis=0)
-    u = u / np.linalg.norm(u)
-    cos_dev = np.clip((d[a:b][far] @ u) / r[far], -1.0, 1.0)
-    turn = float(np.rad2deg(np.arccos(cos_dev.min())))
+    norm = float(np.linalg.norm(u))
+    if norm > 0.0:
+        u = u / norm
+        cos_dev = np.clip((d[a:b][far] @ u) / r[far], -1.0, 1.0)
+        turn = float(np.rad2deg(np.arccos(cos_dev.min())))
+    else:  # the far part points every way around neutral
+        u, turn = d[a + int(np.argmax(r))] / peak, 180.0
     amplitude, duration = first
     if abs(peak / amplitude - 1.0) > _AMPLITUDE_TOLERANCE:
         return (f"reaches {peak:.1f} deg from neutral against {amplitude:.1f} deg for the "

@@ -189,3 +189,22 @@ def test_other_sweep_errors_keep_their_message(bench, tmp_path):
     with pytest.raises(ValueError, match="Too few finite reference tip positions") as info:
         PDLBackbone().fit(X, y).predict(X)
     assert "n_sweep" not in str(info.value)
+
+
+def test_too_few_samples_and_non_finite_angles():
+    with pytest.raises(ValueError, match="have 2 sample"):
+        find_sweep_end(np.zeros((2, 2)), rate_hz=10.0)
+    q = sweep_trajectory()
+    q[5, 1] = np.nan
+    with pytest.raises(ValueError, match="non-finite values, first at sample 5"):
+        find_sweep_end(q, rate_hz=10.0, run="r")
+
+
+def test_a_circle_around_neutral_is_not_a_ray():
+    # out along psi = 0, around neutral on a circle of 60 deg, back: not a ray
+    t = np.linspace(0.0, 2.0 * np.pi, 400)
+    out = np.column_stack([np.linspace(0.0, 60.0, 100), np.zeros(100)])
+    circle = 60.0 * np.column_stack([np.cos(t), np.sin(t)])
+    q = np.concatenate([np.zeros((30, 2)), out, circle, out[::-1], np.zeros((30, 2))])
+    with pytest.raises(ValueError, match=r"is not a calibration sweep: .* which turns by"):
+        find_sweep_end(q, rate_hz=10.0)
