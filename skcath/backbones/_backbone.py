@@ -113,7 +113,9 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None):
         )
         check_sweep_references(ref_sweep, rays, run=run)
     except ValueError as exc:
-        message = str(exc) if given is None else n_sweep_hint(str(exc), given[0], q, given[1], run)
+        if given is None:
+            raise
+        message = n_sweep_hint(str(exc), given[0], q, given[1], run)
         if message == str(exc):
             raise
         raise ValueError(message) from None
