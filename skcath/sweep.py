@@ -9,8 +9,10 @@ belongs to which ray. :func:`find_rays` recovers this from the motor angles
 only (no simulator labels), tolerating a non-zero neutral, encoder noise, an
 arbitrary first direction, slightly uneven directions and any ray order;
 :func:`check_sweep_references` checks that the EM reference tip positions of a
-sweep are usable for the calibration. :func:`reduce_sweep` keeps only some rays
-or samples of every run's sweep, to study a smaller calibration budget; the
+sweep are usable for the calibration. :func:`find_sweep_end` finds where the
+sweep of a run ends, for any number of motors (a recording without a
+``phase`` column, ``docs/sweep_recording.rst``). :func:`reduce_sweep` keeps
+only some rays or samples of every run's sweep, to study a smaller calibration budget; the
 rays of such a sweep are found by passing the spacing of the full layout,
 ``ray_spacing_deg``, to :func:`find_rays` (and to the backbones).
 
@@ -50,9 +52,17 @@ from sklearn.utils._param_validation import Interval, validate_params
 
 from ._format import PHASE, SWEEP
 from ._runs import run_codes, run_positions
+from ._sweep_end import SweepEnd, _noise_level, _stretches, find_sweep_end
 from ._validation import CUT_RUN_HINT, check_recordings, check_target, motor_columns, to_array
 
-__all__ = ["SweepRays", "check_sweep_references", "find_rays", "reduce_sweep"]
+__all__ = [
+    "SweepEnd",
+    "SweepRays",
+    "check_sweep_references",
+    "find_rays",
+    "find_sweep_end",
+    "reduce_sweep",
+]
 
 _TWO_PI = 2.0 * np.pi
 # Fraction of the samples, closest to the running centre, used for the robust
@@ -174,26 +184,6 @@ def _fmt_deg(directions) -> str:
     """Directions (radians) as a readable list of degrees in ``[0, 360)``."""
     deg = np.sort(np.rad2deg(np.asarray(directions)) % 360.0)
     return "[" + ", ".join(f"{d:.1f}" for d in deg) + "]"
-
-
-def _stretches(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Starts and stops (exclusive) of the contiguous True stretches of ``mask``."""
-    edges = np.diff(mask.astype(np.int8), prepend=np.int8(0), append=np.int8(0))
-    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-
-
-def _noise_level(q: np.ndarray) -> float:
-    """Robust encoder-noise standard deviation (deg) from second differences.
-
-    For white noise of standard deviation ``sigma`` the second difference has
-    standard deviation ``sqrt(6) sigma``; the median absolute value (scaled by
-    1.4826) ignores the smooth motion that dominates only a minority of steps
-    at the usual sampling rates.
-    """
-    if len(q) < 3:
-        return 0.0
-    d2 = q[2:] - 2.0 * q[1:-1] + q[:-2]
-    return float(1.4826 * np.median(np.abs(d2), axis=0).max() / np.sqrt(6.0))
 
 
 def _robust_centre(q: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._runs import run_codes, run_positions
 from .._validation import check_recordings, motor_columns
+from .._sweep_end import N_SWEEP_ATTR, n_sweep_hint
 from ..sweep import check_sweep_references, find_rays
 from ._hysteresis import identify_play_width, play_operator
 from ._pcc import calibrate_pcc, pcc_tip
@@ -92,19 +93,32 @@ def check_two_motors(X, owner):
         )
 
 
-def _calibrate_run(backbone, run, q, ref, sweep):
+def _calibrate_run(backbone, run, q, ref, sweep, given=None):
     """Calibrate one run on its sweep rows and evaluate it on all its rows.
+
+    ``given`` is ``(n_sweep, t)`` when the run's sweep rows are the first
+    ``n_sweep`` rows given when it was read (``t``: the times of its rows,
+    s), so that a sweep error names ``n_sweep`` and the sweep end found from
+    the motor angles.
 
     Returns the nominal tips, the parameters, the solver's summary and the
     half-width of the play (deg; 0 without hysteresis).
     """
     q_sweep, ref_sweep = q[sweep], ref[sweep]
-    rays = find_rays(
-        q_sweep, n_rays=backbone.n_rays, run=run,
-        # absent from backbones pickled before the parameter existed
-        ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
-    )
-    check_sweep_references(ref_sweep, rays, run=run)
+    try:
+        rays = find_rays(
+            q_sweep, n_rays=backbone.n_rays, run=run,
+            # absent from backbones pickled before the parameter existed
+            ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
+        )
+        check_sweep_references(ref_sweep, rays, run=run)
+    except ValueError as exc:
+        if given is None:
+            raise
+        message = n_sweep_hint(str(exc), given[0], q, given[1], run)
+        if message == str(exc):
+            raise
+        raise ValueError(message) from None
     if getattr(backbone, "hysteresis", None) is None:
         params, info = backbone._calibrate(q_sweep, ref_sweep, rays, q_sweep)
         return backbone._evaluate(q, params), params, info, 0.0
@@ -206,8 +220,13 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         q = X[list(fmt.MOTOR_COLUMNS)].to_numpy()
         ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy()
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        t = X[fmt.TIME].to_numpy()
+        given = X.attrs.get(N_SWEEP_ATTR, {})
         results = Parallel(n_jobs=self.n_jobs)(
-            delayed(_calibrate_run)(self, run, q[pos], ref[pos], sweep[pos])
+            delayed(_calibrate_run)(
+                self, run, q[pos], ref[pos], sweep[pos],
+                (given[run], t[pos]) if run in given else None,
+            )
             for run, pos in zip(runs, positions)
         )
         nominal = np.empty((len(X), 3))

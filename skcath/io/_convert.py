@@ -21,9 +21,10 @@ from .._format import (
     SWEEP, TARGET_NAMES, TIME, TORQUE_PREFIX, channel_index, motor_names, torque_names,
 )
 from .._runs import run_codes, run_steps
+from .._sweep_end import N_SWEEP_ATTR, find_sweep_end
 from .._validation import check_recordings
 from ..frames import tip_in_base_frame
-from ._options import SINGLE_NAMES
+from ._options import AUTO_SWEEP, SINGLE_NAMES
 
 __all__ = ["VALID_STRINGS", "recording_from_table"]
 
@@ -357,6 +358,39 @@ def _phase_values(source, codes, runs, phase, n_sweep):
     return np.where(run_steps(codes, len(runs)) < n_sweep, SWEEP, MOTION).astype(object)
 
 
+def _detected_phases(label, codes, runs, t, values):
+    """Phase of every row, the sweep of each run found from its motor angles.
+
+    Parameters
+    ----------
+    label : str
+        File name, for messages.
+    codes, runs : ndarray
+        Run code of every row and the run ids it indexes.
+    t : ndarray of shape (n_rows,)
+        Time of every row (s).
+    values : dict
+        Channel name -> values of every row; the motor angles ``q1 .. qN``
+        are used.
+
+    Raises
+    ------
+    ValueError
+        Starting with ``label`` and naming the run, when the start of a run
+        is not a sweep (:func:`skcath.sweep.find_sweep_end`).
+    """
+    q = np.column_stack([values[c] for c in values if c.startswith(MOTOR_PREFIX)])
+    phases = np.full(len(codes), MOTION, dtype=object)
+    for k, run in enumerate(runs):
+        rows = np.flatnonzero(codes == k)
+        try:
+            end = find_sweep_end(q[rows], t[rows], run=run)
+        except ValueError as exc:
+            raise ValueError(f"{label}: n_sweep={AUTO_SWEEP!r}: {exc}") from None
+        phases[rows[: end.n_sweep]] = SWEEP
+    return phases
+
+
 def _channel(source, constants, name):
     """A motor or torque channel: from the file or from ``constants``.
 
@@ -619,14 +653,14 @@ def recording_from_table(frame, name, stem, options, *, with_poses=False):
     ids = _id_values(source, options.ids, stem)
     codes, runs = run_codes(pd.DataFrame(ids))
     invalid = ~_valid_rows(source, options.valid_column, options.valid_values)
-    data = {
-        **ids,
-        TIME: _time_values(source, codes, options.rate_hz),
-        PHASE: _phase_values(source, codes, runs, options.phase, options.n_sweep),
-    }
+    data = {**ids, TIME: _time_values(source, codes, options.rate_hz)}
     channels = _channel_names(source, options)
-    for channel in channels:
-        data[channel] = _channel(source, options.constants, channel)
+    values = {channel: _channel(source, options.constants, channel) for channel in channels}
+    if options.n_sweep == AUTO_SWEEP and PHASE not in source:
+        data[PHASE] = _detected_phases(label, codes, runs, data[TIME], values)
+    else:
+        data[PHASE] = _phase_values(source, codes, runs, options.phase, options.n_sweep)
+    data.update(values)
     y, poses = _target_values(source, options.tip_offset, invalid)
     ref = _reference_values(source, y, data[PHASE] == SWEEP, invalid)
     data.update(zip(REFERENCE_COLUMNS, ref.T))
@@ -636,4 +670,7 @@ def recording_from_table(frame, name, stem, options, *, with_poses=False):
         X, y = check_recordings(X, y, require_sweep=options.require_sweep)
     except ValueError as exc:
         raise ValueError(f"{label}: the recording read is not valid: {exc}") from None
+    if options.n_sweep not in (None, AUTO_SWEEP) and options.n_sweep > 0:
+        # the sweep errors of the backbones name the n_sweep given (skcath.sweep)
+        X.attrs[N_SWEEP_ATTR] = {run: int(options.n_sweep) for run in runs}
     return (X, y, poses) if with_poses else (X, y)

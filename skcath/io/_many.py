@@ -16,6 +16,7 @@ from sklearn.utils._param_validation import validate_params
 from tqdm.auto import tqdm
 
 from .._format import CATHETER, ID_COLUMNS, RUN, SETTING, channel_index
+from .._sweep_end import N_SWEEP_ATTR
 from .._validation import check_recordings
 from ._errors import naming_the_file
 from ._options import OPTION_NAMES, check_option_names
@@ -153,6 +154,8 @@ def _read_manifest(manifest):
                 value = value.item()
             if key in _INTEGER_OPTIONS and isinstance(value, float) and value.is_integer():
                 value = int(value)  # a column with an empty cell is read as floats
+            if key == "n_sweep" and isinstance(value, str) and value.strip().isdigit():
+                value = int(value)  # a column mixing numbers and "auto" is read as text
             options[key] = value
         jobs.append((path, options))
     if not jobs:
@@ -265,7 +268,8 @@ def read_recordings(
         working directory for a DataFrame) and optional columns ``catheter``,
         ``setting``, ``run`` and other per-file options of
         :func:`read_recording` (``n_sweep``, ``rate_hz``, ``phase``, ...).
-        An empty cell leaves that option unset for that file.
+        An empty cell leaves that option unset for that file; an ``n_sweep``
+        column may mix numbers and ``"auto"``.
     progress : bool, default=True
         Show a tqdm progress bar over the files.
     quat_check : bool, default=True
@@ -344,6 +348,11 @@ def read_recordings(
     frames, targets = _read_files(jobs, read_kwargs, progress, quat_check)
     # the joined table must be valid recordings as a whole, as every reader's output is;
     # each file's sweep was checked as its options asked (phase="motion": none)
-    return check_recordings(
+    given = {run: n for X in frames for run, n in X.attrs.get(N_SWEEP_ATTR, {}).items()}
+    X, y = check_recordings(
         pd.concat(frames, ignore_index=True), np.concatenate(targets, axis=0), require_sweep=False
     )
+    X.attrs.pop(N_SWEEP_ATTR, None)
+    if given:  # the n_sweep given for each run, whatever the other files' options
+        X.attrs[N_SWEEP_ATTR] = given
+    return X, y

@@ -35,6 +35,9 @@ from .._validation import check_quat_order, check_tip_offset
 
 __all__ = ["OPTION_NAMES", "SINGLE_NAMES", "ReadingOptions", "check_option_names"]
 
+#: The ``n_sweep`` that finds each run's sweep from its motor angles.
+AUTO_SWEEP = "auto"
+
 _POSE_NAMES = tuple(name for names in SENSOR_POSE_COLUMNS.values() for name in names)
 _POSITION_GROUPS = ("tip_position", "base_position")
 _ORIENTATION_GROUPS = ("tip_orientation", "base_orientation")
@@ -257,12 +260,15 @@ def _check_phase(phase, n_sweep):
         )
     if phase is not None and phase not in PHASES:
         raise ValueError(f"phase must be one of {list(PHASES)}; got {phase!r}.")
-    if n_sweep is not None and (
+    if n_sweep is not None and n_sweep != AUTO_SWEEP and (
         not isinstance(n_sweep, numbers.Integral)
         or isinstance(n_sweep, (bool, np.bool_))
         or n_sweep < 0
     ):
-        raise ValueError(f"n_sweep must be a non-negative integer; got {n_sweep!r}.")
+        raise ValueError(
+            f"n_sweep must be a non-negative integer or {AUTO_SWEEP!r} (found from the motor "
+            f"angles); got {n_sweep!r}."
+        )
 
 
 def _check_rate(rate_hz):
@@ -345,9 +351,9 @@ class ReadingOptions:
         their components.
     phase : {"sweep", "motion"} or None
         Phase of every row, for files without a phase column.
-    n_sweep : int or None
+    n_sweep : int, "auto" or None
         Sweep samples at the start of every run, for files without a phase
-        column.
+        column; ``"auto"`` finds them from the motor angles.
     valid : str, tuple (str, tuple) or None
         Status column, optionally with the values that mean valid.
     tip_offset : tuple of 3 float or None
@@ -373,7 +379,7 @@ class ReadingOptions:
     constants: Mapping[str, float] | None = None
     scale: float | Mapping[str, float] | None = None
     phase: str | None = None
-    n_sweep: int | None = None
+    n_sweep: int | str | None = None
     valid: str | tuple[str, tuple] | None = None
     tip_offset: tuple[float, float, float] | None = None
     torques: bool = True

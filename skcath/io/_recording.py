@@ -177,9 +177,16 @@ def read_recording(
     phase : {"sweep", "motion"}, default=None
         Phase of every row, for files without a phase column. Alternative to
         ``n_sweep``.
-    n_sweep : int, default=None
+    n_sweep : int or "auto", default=None
         For files without a phase column: the first ``n_sweep`` samples (in
-        file order) of each run are the sweep, the rest motion.
+        file order) of each run are the sweep, the rest motion. ``"auto"``
+        finds where each run's sweep ends from its motor angles and times
+        (:func:`skcath.sweep.find_sweep_end`; ``docs/sweep_recording.rst``
+        says what the robot must run), and raises an error naming the file
+        and the run when the start of a run is not a sweep. A given number is
+        kept in ``X.attrs["n_sweep"]`` (run id -> n_sweep), so that the error
+        of a backbone that cannot find the rays in such a sweep names
+        ``n_sweep`` and the sweep end found from the motor angles.
     valid : str or tuple (str, values), default=None
         File column holding a tracker status per row. Rows that are not valid
         keep their place, but their target and reference are set to NaN
