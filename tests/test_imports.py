@@ -229,8 +229,10 @@ def test_exceptions_are_the_same_classes_everywhere():
 
     assert set(exceptions.__all__) == {
         "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
-        "IncompatibleVersionError", "PipelineChangedWarning", "TruncatedFileWarning",
+        "IncompatibleVersionError", "PipelineChangedWarning", "SampleRateWarning",
+        "TruncatedFileWarning",
     }
+    assert issubclass(exceptions.SampleRateWarning, UserWarning)
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
     assert issubclass(exceptions.PipelineChangedWarning, UserWarning)
     assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)
