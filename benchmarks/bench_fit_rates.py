@@ -11,8 +11,9 @@ Data: catheter C1 of the simulated benchmark, its 17 shaft settings with
 ``--n-runs`` runs each, generated at every rate with
 ``make_benchmark(n_catheters=1, n_runs=..., rate_hz=...)``: the same runs
 (motions, drifts, base poses) sampled at each rate, with fresh per-sample
-noise. Settings are held out with ``SettingGroupKFold(--n-folds)``; for every
-fold ``Pipeline([("backbone", PDLBackbone()), ("residual", GRUResidual(...))])``
+noise. Settings are held out with ``SettingGroupKFold(--n-folds)`` (the
+same folds at every rate; ``--max-folds`` evaluates only the first ones); for
+every fold ``Pipeline([("backbone", PDLBackbone()), ("residual", GRUResidual(...))])``
 is fitted on the other settings' runs and predicts the held-out settings'
 runs, both at the same rate. The learner keeps every default but the network
 size and the epochs, the same at every rate: the quick schedule's
@@ -27,6 +28,8 @@ Usage (from the repository root)::
 
     nice -n 10 .venv/bin/python benchmarks/bench_fit_rates.py
     nice -n 10 .venv/bin/python benchmarks/bench_fit_rates.py --rates 10 40 --n-runs 1 --n-folds 2
+    nice -n 10 .venv/bin/python benchmarks/bench_fit_rates.py --rates 10 100 40 20 \
+        --n-runs 1 --n-folds 2 --max-folds 1      # the short table of docs/studies/rates.rst
 """
 
 from __future__ import annotations
@@ -64,6 +67,10 @@ def parse_args(argv=None):
     parser.add_argument("--max-folds", type=int, default=None,
                         help="evaluate only the first folds (the same ones at every rate)")
     parser.add_argument("--epochs", type=int, default=12, help="training epochs")
+    parser.add_argument("--model-rate", type=float, default=None,
+                        help="also fit every faster rate with GRUResidual(rate_hz=MODEL_RATE)")
+    parser.add_argument("--model-rate-only", action="store_true",
+                        help="with --model-rate: fit the faster rates with it only")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--cache", action="store_true",
                         help="cache the generated data in the skcath data folder")
@@ -71,18 +78,25 @@ def parse_args(argv=None):
     return parser.parse_args(argv)
 
 
-def learner(args):
+def learner(args, model_rate=None):
     """GRUResidual with its defaults, the quick schedule's network size and ``--epochs``."""
     return GRUResidual(max_epochs=args.epochs, random_state=0, n_threads=args.threads,
-                       **NETWORK)
+                       rate_hz=model_rate, **NETWORK)
 
 
-def evaluate(X, y, args):
+def model_rates(rate, args):
+    """The ``rate_hz`` of the learners fitted at ``rate``: None (the defaults), the model rate."""
+    if args.model_rate is None or rate <= args.model_rate:
+        return [None]
+    return [args.model_rate] if args.model_rate_only else [None, args.model_rate]
+
+
+def evaluate(X, y, args, model_rate=None):
     """Per-run errors of every held-out run, the fitted time scales and the fitting time."""
     cv = SettingGroupKFold(n_splits=args.n_folds)
     errors, fit_s, scales = [], 0.0, None
     for train, test in list(cv.split(X))[: args.max_folds]:
-        pipe = Pipeline([("backbone", PDLBackbone()), ("residual", learner(args))])
+        pipe = Pipeline([("backbone", PDLBackbone()), ("residual", learner(args, model_rate))])
         start = time.perf_counter()
         pipe.fit(X.iloc[train], y[train])
         fit_s += time.perf_counter() - start
@@ -107,29 +121,35 @@ def main(argv=None):
         y = np.asarray(bench.y)
         print(f"data at {rate:g} Hz: {len(X)} rows in {time.perf_counter() - start:.0f} s",
               flush=True)
-        errors, scales, fit_s = evaluate(X, y, args)
-        pdl = per_run_rmse(y, PDLBackbone().fit(X).predict(X), X)
-        results[rate] = {
-            "rmse": float(errors.mean()), "n_runs": len(errors), "pdl": float(pdl.mean()),
-            "fit_s": fit_s, "rate_hz_": scales[0], "samples": list(scales[1:]),
-            "per_run": {str(k): float(v) for k, v in errors.items()},
-        }
-        print(f"{rate:g} Hz: RMSE {errors.mean():.3f} mm ({fit_s:.0f} s fitting)", flush=True)
+        pdl = float(per_run_rmse(y, PDLBackbone().fit(X).predict(X), X).mean())
+        for model_rate in model_rates(rate, args):
+            errors, scales, fit_s = evaluate(X, y, args, model_rate)
+            results[rate, model_rate] = {
+                "rate": rate, "model_rate": model_rate, "rmse": float(errors.mean()),
+                "n_runs": len(errors), "pdl": pdl, "fit_s": fit_s, "rate_hz_": scales[0],
+                "samples": list(scales[1:]),
+                "per_run": {str(k): float(v) for k, v in errors.items()},
+            }
+            print(f"{rate:g} Hz, rate_hz={model_rate}: RMSE {errors.mean():.3f} mm "
+                  f"({fit_s:.0f} s fitting)", flush=True)
         if args.json:  # after every rate, so that a long run keeps what it measured
-            args.json.write_text(json.dumps({str(k): v for k, v in results.items()}, indent=1))
+            args.json.write_text(json.dumps(list(results.values()), indent=1))
 
     print()
     for line in machine_lines():
         print(line)
     print()
-    reference = results[args.rates[0]]["rmse"]
-    print(f"| rate | window, window step, burn-in, sweep stride (samples) | PDL alone mm | "
-          f"PDL+GRU RMSE mm (runs) | vs {args.rates[0]:g} Hz | fitting s |")
-    print("|---|---|---:|---:|---:|---:|")
-    for rate, r in sorted(results.items()):
+    reference = results[args.rates[0], None]["rmse"]
+    print(f"| recorded at | GRUResidual | window, window step, burn-in, sweep stride "
+          f"(samples) | PDL alone mm | PDL+GRU RMSE mm (runs) | vs {args.rates[0]:g} Hz | "
+          "fitting s |")
+    print("|---|---|---|---:|---:|---:|---:|")
+    for (rate, model_rate), r in sorted(results.items(), key=lambda kv: (kv[0][0], kv[0][1] or 0)):
         counts = ", ".join(str(c) for c in r["samples"])
-        print(f"| {rate:g} Hz | {counts} | {r['pdl']:.3f} | {r['rmse']:.3f} ({r['n_runs']}) | "
-              f"{100 * (r['rmse'] / reference - 1):+.1f} % | {r['fit_s']:.0f} |")
+        how = "defaults" if model_rate is None else f"rate_hz={model_rate:g}"
+        print(f"| {rate:g} Hz | {how} | {counts} | {r['pdl']:.3f} | {r['rmse']:.3f} "
+              f"({r['n_runs']}) | {100 * (r['rmse'] / reference - 1):+.1f} % | "
+              f"{r['fit_s']:.0f} |")
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 from sklearn.pipeline import Pipeline
 
 from skcath._rate import training_rate
@@ -22,6 +23,7 @@ from skcath.online import ShaftChangeDetector
 from skcath.protocol import FULL, QUICK
 from skcath.residuals import GRUResidual, MLPResidual
 from skcath.residuals._time_scales import time_scales, to_samples
+from skcath.sequences import resample_runs
 
 #: Seconds of motion kept after the sweep: long enough for three 20 s windows.
 MOTION_S = 60.0
@@ -166,3 +168,20 @@ def test_detector_warns_when_its_per_sample_defaults_meet_another_rate():
         warnings.simplefilter("error", SampleRateWarning)
         ShaftChangeDetector(rate_hz=40.0, threshold=500.0, drift=2.0).start(sweep)
         ShaftChangeDetector().start(_sweep(10.0))
+
+
+def test_a_model_rate_trains_on_the_runs_resampled_to_it(runs):
+    X, y = runs(40.0)
+    X_in, y_in = X.copy(), y.copy()
+    pipe = Pipeline([("backbone", PDLBackbone()),
+                     ("residual", GRUResidual(rate_hz=10.0, **SMALL))]).fit(X, y)
+    residual = pipe.named_steps["residual"]
+    assert residual.rate_hz_ == pytest.approx(10.0) and residual.window_ == 200
+    assert X.equals(X_in) and np.array_equal(y, y_in, equal_nan=True)
+    # the same learner fitted by hand on the backbone's output and the tips at 10 Hz
+    Xb = pipe.named_steps["backbone"].transform(X)
+    Z = resample_runs(Xb.assign(tip_x=y[:, 0], tip_y=y[:, 1], tip_z=y[:, 2]), 10.0)
+    tips = ["tip_x", "tip_y", "tip_z"]
+    by_hand = GRUResidual(**SMALL).fit(Z.drop(columns=tips), Z[tips].to_numpy())
+    assert_allclose(pipe.predict(X), by_hand.predict(Xb), atol=1e-9)
+    assert list(residual.feature_names_in_) == list(Xb.columns)

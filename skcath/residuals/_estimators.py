@@ -49,7 +49,7 @@ from ._features import (
 )
 from ._modules import GRUResidualModule, MaskedNormalizedMSE, MLPResidualModule, on_cpu
 from ._same_network import check_same_network
-from ._time_scales import check_renamed, fitted_sweep_stride, time_scales
+from ._time_scales import at_model_rate, check_renamed, fitted_sweep_stride, time_scales
 
 __all__ = [
     "GRUResidual",
@@ -199,6 +199,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         "window_step_s": [Interval(Real, 0, None, closed="neither"), None],
         "burn_in_s": [Interval(Real, 0, None, closed="left")],
         "sweep_stride_s": [Interval(Real, 0, None, closed="neither")],
+        "rate_hz": [Interval(Real, 0, None, closed="neither"), None],
         "sweep_pooling": [StrOptions({"mean", "subsample"})],
         "use_torque": ["boolean"],
         "use_context": ["boolean"],
@@ -228,6 +229,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         window_step_s=None,
         burn_in_s=5.0,
         sweep_stride_s=4.0,
+        rate_hz=None,
         sweep_pooling="mean",
         use_torque=True,
         use_context=True,
@@ -261,6 +263,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.window_step_s = window_step_s
         self.burn_in_s = burn_in_s
         self.sweep_stride_s = sweep_stride_s
+        self.rate_hz = rate_hz
         self.sweep_pooling = sweep_pooling
         self.use_torque = use_torque
         self.use_context = use_context
@@ -644,12 +647,14 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
 
     def _partial_fit(self, X, y, sample_weight=None, **fit_params):
         """Train the initialised network for ``max_epochs`` on checked recordings."""
+        given = X  # its columns are those predict checks
+        X, y, sample_weight = at_model_rate(X, y, sample_weight, self.rate_hz, type(self).__name__)
         self._record_rate(X)
         F, motion, sweep, e, _ = self._sequences(X, y)
         if not hasattr(self, "sigma_e_"):
             self._fit_statistics(F, e, sample_weight)
         data, target = self._training_windows(X, motion, sweep, sample_weight)
-        self._record_columns(X)
+        self._record_columns(given)
         seed = self._seed()
         self._split_seed_ = None if seed is None else seed + 1
         if seed is not None:
@@ -903,6 +908,12 @@ _COMMON_PARAMS = """
         Time of the sweep per step of the context encoder (s; 40 samples at
         10 Hz, at least 1): the sweep sequence is shortened by this factor
         before encoding.
+    rate_hz : float or None, default=None
+        Rate at which the network steps (Hz). None: the rate of the training
+        runs. A rate (e.g. 10.0 for recordings at 100 Hz) resamples the
+        training runs onto ticks at that rate before training, as ``predict``
+        resamples any run at another rate (``docs/residuals.rst``, *Sample
+        rates*; ``docs/studies/rates.rst`` measures it).
     sweep_pooling : {"mean", "subsample"}, default="mean"
         How the samples of a block of ``sweep_stride_s`` become one encoder
         step: their mean, which averages out the measurement noise of the

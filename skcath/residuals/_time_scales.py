@@ -15,10 +15,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+from .._rate import to_model_rate
+
 __all__ = [
     "REFERENCE_RATE_HZ",
     "RENAMED",
     "TimeScales",
+    "at_model_rate",
     "check_renamed",
     "fitted_sweep_stride",
     "time_scales",
@@ -183,3 +188,32 @@ def fitted_sweep_stride(learner) -> int:
     if stride is None:
         stride = learner.__dict__["sweep_stride"]
     return int(stride)
+
+
+def at_model_rate(X, y, sample_weight, rate_hz, owner):
+    """Training recordings, targets and weights brought to a learner's ``rate_hz``.
+
+    None (the default of the learners' ``rate_hz``) keeps them as they are.
+    Otherwise every run not at ``rate_hz`` within ``RATE_TOLERANCE`` is
+    resampled onto its ticks at ``rate_hz`` as ``predict`` does
+    (:func:`skcath._rate.to_model_rate`): the channels, the backbone's tip,
+    the measured tip ``y`` and the weights are interpolated linearly in time
+    (a tip next to a tracker dropout is NaN, and left out of the loss).
+
+    Returns
+    -------
+    X, y, sample_weight
+        New objects where a run was resampled; the inputs are not modified.
+    """
+    if rate_hz is None:
+        return X, y, sample_weight
+    extra = {f"__tip{k}": y[:, k] for k in range(y.shape[1])}
+    if sample_weight is not None:
+        extra["__weight"] = sample_weight
+    at_rate = to_model_rate(X.assign(**extra), float(rate_hz), owner)
+    if at_rate is None:
+        return X, y, sample_weight
+    Z = at_rate.X
+    tips = Z[[f"__tip{k}" for k in range(y.shape[1])]].to_numpy(dtype=np.float64)
+    weight = None if sample_weight is None else Z["__weight"].to_numpy(dtype=np.float64)
+    return Z.drop(columns=list(extra)), tips, weight
