@@ -140,7 +140,7 @@ def main(argv=None):
     for line in machine_lines():
         print(line)
     print()
-    reference = results[args.rates[0], None]["rmse"]
+    reference = results.get((args.rates[0], None), next(iter(results.values())))["rmse"]
     print(f"| recorded at | GRUResidual | window, window step, burn-in, sweep stride "
           f"(samples) | PDL alone mm | PDL+GRU RMSE mm (runs) | vs {args.rates[0]:g} Hz | "
           "fitting s |")

@@ -638,8 +638,8 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             raise ValueError(
                 f"This {name} counts time in samples at {known:.4g} Hz, the rate it was first "
                 f"fitted (or pretrained) at, but these training runs are at {rate:.4g} Hz. "
-                "Resample them to that rate first (skcath.sequences.resample_runs), or fit "
-                "a new model."
+                f"Pass rate_hz={known:.4g} to train on them resampled to that rate, or fit a "
+                "new model."
             )
         scales = time_scales(self, self.rate_hz_)  # in samples at the fitted rate
         self.window_, self.window_step_ = scales.window, scales.window_step
