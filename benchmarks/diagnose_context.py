@@ -71,6 +71,7 @@ from skcath.frames import sweep_frame
 from skcath.metrics import mean_per_run_rmse
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual
+from skcath.residuals._time_scales import REFERENCE_RATE_HZ, to_samples
 from skcath.sweep import find_rays
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -271,7 +272,7 @@ class KnownContext:
     ``frame="sweep"`` does, and the residual is rotated back and clipped as
     the learner does it. With ``known``, each run's vector, standardised
     over the runs of ``known``, reaches the encoder as sweep rows: two
-    numbers per block of ``sweep_stride`` rows in the torque columns, the
+    numbers per block of ``sweep_stride_s`` (in rows) in the torque columns, the
     motor columns held at the sweep's last angles (so that the first motion
     step keeps its true ``dq``), placed before the run's sweep
     (``keep_sweep``) or instead of it.
@@ -308,7 +309,7 @@ class KnownContext:
         scale = z.std(axis=0)
         z = (z - z.mean(axis=0)) / np.where(scale > 0, scale, 1.0)
         z = pd.DataFrame(np.c_[z, np.zeros((len(z), len(z.T) % 2))], index=self.known.index)
-        stride = self.learner.sweep_stride
+        stride = to_samples(self.learner.sweep_stride_s, REFERENCE_RATE_HZ)  # 10 Hz runs
         parts, targets, sources = [], [], []
         runs = X["run"].astype(str).to_numpy()
         sweep = (X["phase"] == "sweep").to_numpy()
@@ -370,8 +371,8 @@ def memory(Xb, y, epochs, seed):
     common = {"max_epochs": epochs, "module__hidden_size": 64, "random_state": seed, "n_threads": 1}
     return _cross_validate(Xb, y, {
         "windows of 200 steps (default)": lambda: GRUResidual(**common),
-        "windows of 600 steps, burn-in 100": lambda: GRUResidual(window=600, burn_in=100, **common),
-        "whole motion sequences, 8 per batch": lambda: GRUResidual(window=None, batch_size=8, **common),
+        "windows of 600 steps, burn-in 100": lambda: GRUResidual(window_s=60.0, burn_in_s=10.0, **common),
+        "whole motion sequences, 8 per batch": lambda: GRUResidual(window_s=None, batch_size=8, **common),
     })
 
 

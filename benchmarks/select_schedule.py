@@ -24,12 +24,12 @@ Usage::
     python benchmarks/select_schedule.py                       # the default grid (~6 CPU-min)
     python benchmarks/select_schedule.py --grid 30:2:3e-3 20:8:3e-3 --n-jobs 2
     python benchmarks/select_schedule.py --grid 30:2:3e-3:64 30:2:3e-3:32 \
-        --sweep-stride 20 --sweep-pooling subsample          # the earlier context input
+        --sweep-stride-s 2.0 --sweep-pooling subsample       # the earlier context input
     python benchmarks/select_schedule.py --method "PDL+GRU (no context)"
 
 Each grid entry is ``PRETRAIN_EPOCHS:FINETUNE_EPOCHS:FINETUNE_LR`` with an
 optional ``:FINETUNE_BATCH_SIZE`` (default 64; pretraining always uses 64).
-``--sweep-stride`` and ``--sweep-pooling`` set how the sweep is shortened
+``--sweep-stride-s`` (s) and ``--sweep-pooling`` set how the sweep is shortened
 for the context encoder in both stages; ``--method`` the learned method
 (:data:`skcath.protocol.VARIANTS`: its learner and inputs);
 ``--param KEY=VALUE`` (repeatable) sets any other learner parameter in both
@@ -131,8 +131,8 @@ def main(argv=None):
                         help=f"learned method, among {list(VARIANTS)} (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random_state (default: 0)")
     parser.add_argument("--n-jobs", type=int, default=1, help="models trained in parallel")
-    parser.add_argument("--sweep-stride", type=int, default=40,
-                        help="sweep samples per context-encoder step (default: 40)")
+    parser.add_argument("--sweep-stride-s", type=float, default=4.0,
+                        help="sweep seconds per context-encoder step (default: 4.0)")
     parser.add_argument("--sweep-pooling", choices=("mean", "subsample"), default="mean",
                         help="how a block of the sweep becomes one step (default: mean)")
     parser.add_argument("--param", type=_param, action="append", default=[],
@@ -141,7 +141,7 @@ def main(argv=None):
                         help="batch size of the pretraining (default: 64)")
     args = parser.parse_args(argv)
     grid = [_parse(entry) for entry in args.grid]
-    context = {"sweep_stride": args.sweep_stride, "sweep_pooling": args.sweep_pooling,
+    context = {"sweep_stride_s": args.sweep_stride_s, "sweep_pooling": args.sweep_pooling,
                **dict(args.param)}
 
     data = make_benchmark()

@@ -11,6 +11,7 @@ __all__ = [
     "InconsistentVersionWarning",
     "PickledFileError",
     "PipelineChangedWarning",
+    "SampleRateWarning",
     "TruncatedFileWarning",
 ]
 
@@ -111,4 +112,15 @@ class PipelineChangedWarning(UserWarning):
     started estimator is unpickled, if the pipeline it holds differs from the
     one at ``start``. Call ``start(sweep)`` again to step the pipeline as it
     is.
+    """
+
+
+class SampleRateWarning(UserWarning):
+    """A parameter that counts samples meets another rate than it was chosen at.
+
+    Warned by :meth:`skcath.online.ShaftChangeDetector.start` when the sweep's
+    times are at another rate than its ``rate_hz``, and when its per-sample
+    CUSUM ``threshold`` or ``drift`` keeps its default (chosen at 10 Hz) at a
+    rate more than 10 % from 10 Hz. The residual learners give their time
+    scales in seconds and need no such warning.
     """

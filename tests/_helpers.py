@@ -35,9 +35,9 @@ def tiny_residual(Est, *, max_epochs=2, **params):
     base = dict(
         max_epochs=max_epochs,
         batch_size=16,
-        window=50,
-        burn_in=10,
-        sweep_stride=50,
+        window_s=5.0,
+        burn_in_s=1.0,
+        sweep_stride_s=5.0,
         n_threads=1,
         random_state=0,
         module__hidden_size=8,
@@ -70,7 +70,7 @@ def tiny_schedule(*, seeds, variants):
         seeds=seeds,
         n_setting_folds=2,
         variants=variants,
-        model_params={"module__hidden_size": 8, "window_step": 200},
+        model_params={"module__hidden_size": 8, "window_step_s": 20.0},
         pretrain_params={"max_epochs": 1},
         finetune_params={"max_epochs": 1},
     )

@@ -932,7 +932,7 @@ def test_residual_pipeline_from_others_loads_without_pickle(bench, tmp_path):
     pytest.importorskip("skops")
     X, y = bench
     pipe = Pipeline([("backbone", PDLBackbone()), ("residual", GRUResidual(
-        max_epochs=1, module__hidden_size=8, window_step=200, random_state=0, n_threads=1))])
+        max_epochs=1, module__hidden_size=8, window_step_s=20.0, random_state=0, n_threads=1))])
     expected = pipe.fit(X, y).predict(X)
     path = tmp_path / "from_others.skcath"
     persist.save(pipe, path)  # pickle-free by default
@@ -1020,7 +1020,7 @@ def test_groups_given_to_a_package_splitter_warn(bench):
 # pipeline, step inputs, pretrained networks, methods not offered, devices
 # ---------------------------------------------------------------------------
 def _tiny_gru(**params):
-    return GRUResidual(**{"max_epochs": 1, "module__hidden_size": 8, "window_step": 200,
+    return GRUResidual(**{"max_epochs": 1, "module__hidden_size": 8, "window_step_s": 20.0,
                           "random_state": 0, "n_threads": 1, **params})
 
 

@@ -253,7 +253,7 @@ def _tiny_schedule():
         seeds=(0,),
         n_setting_folds=2,
         variants=("PDL+GRU",),
-        model_params={"module__hidden_size": 8, "window_step": 200, "sweep_stride": 40},
+        model_params={"module__hidden_size": 8, "window_step_s": 20.0, "sweep_stride_s": 4.0},
         pretrain_params={"max_epochs": 1},
         finetune_params={"max_epochs": 1},
     )

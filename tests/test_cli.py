@@ -192,7 +192,7 @@ def _tiny_schedule(name="tiny"):
         seeds=(0,),
         n_setting_folds=2,
         variants=("PDL+GRU",),
-        model_params={"module__hidden_size": 8, "window_step": 200},
+        model_params={"module__hidden_size": 8, "window_step_s": 20.0},
         pretrain_params={"max_epochs": 1},
         finetune_params={"max_epochs": 1},
     )

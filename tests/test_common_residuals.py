@@ -160,9 +160,9 @@ LEARNER_FAILURES = {
 # Tiny networks: the checks that do run (unfitted errors, parameters) build them.
 _TINY = dict(
     max_epochs=1,
-    window=20,
-    burn_in=5,
-    sweep_stride=20,
+    window_s=2.0,
+    burn_in_s=0.5,
+    sweep_stride_s=2.0,
     n_threads=1,
     random_state=0,
     module__hidden_size=4,

@@ -302,9 +302,9 @@ def _gru():
     return GRUResidual(
         max_epochs=1,
         batch_size=16,
-        window=50,
-        burn_in=10,
-        sweep_stride=50,
+        window_s=5.0,
+        burn_in_s=1.0,
+        sweep_stride_s=5.0,
         n_threads=1,
         module__hidden_size=8,
         module__encoder_hidden_size=8,

@@ -53,7 +53,7 @@ def pipelines(data):
         key = (Est, tuple(sorted(params.items())))
         if key not in cache:
             base = dict(
-                max_epochs=1, batch_size=16, window=50, burn_in=10, sweep_stride=50,
+                max_epochs=1, batch_size=16, window_s=5.0, burn_in_s=1.0, sweep_stride_s=5.0,
                 n_threads=1, random_state=0, module__hidden_size=8,
                 module__encoder_hidden_size=8, module__context_size=4,
             )

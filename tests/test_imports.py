@@ -230,8 +230,10 @@ def test_exceptions_are_the_same_classes_everywhere():
     assert set(exceptions.__all__) == {
         "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
         "IncompatibleVersionError", "PickledFileError", "PipelineChangedWarning",
+        "SampleRateWarning",
         "TruncatedFileWarning",
     }
+    assert issubclass(exceptions.SampleRateWarning, UserWarning)
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
     assert issubclass(exceptions.PipelineChangedWarning, UserWarning)
     assert issubclass(exceptions.GroupsNotUsedWarning, UserWarning)

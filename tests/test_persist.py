@@ -32,7 +32,7 @@ from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
 from _helpers import instrument
 
-TINY = {"max_epochs": 1, "module__hidden_size": 8, "window_step": 200, "random_state": 0,
+TINY = {"max_epochs": 1, "module__hidden_size": 8, "window_step_s": 20.0, "random_state": 0,
         "n_threads": 1}
 BACKBONES = {"PCC": PCCBackbone, "PDL": PDLBackbone}
 RESIDUALS = {

@@ -572,20 +572,20 @@ def test_clone_and_nested_params(Est, small, fitted):
     _, Xb, y = small
     est, pred = fitted(Est)
     keys = [
-        "module__hidden_size", "module__context_size", "window", "burn_in", "sweep_stride",
+        "module__hidden_size", "module__context_size", "window_s", "burn_in_s", "sweep_stride_s",
         "lr", "max_epochs", "batch_size", "n_threads", "random_state", "clip", "use_torque",
     ]  # fmt: skip
     params = est.get_params()
-    assert params["module__hidden_size"] == 8 and params["window"] == 50
-    assert params["burn_in"] == 10
+    assert params["module__hidden_size"] == 8 and params["window_s"] == 5.0
+    assert params["burn_in_s"] == 1.0
     cloned = clone(est)
     assert {k: cloned.get_params()[k] for k in keys} == {k: params[k] for k in keys}
     assert not cloned.initialized_ and not hasattr(cloned, "sigma_e_")
     assert_array_equal(cloned.fit(Xb, y).predict(Xb), pred)
     # module__ parameters reach the network
-    other = tiny_residual(Est).set_params(module__hidden_size=6, window=40)
+    other = tiny_residual(Est).set_params(module__hidden_size=6, window_s=4.0)
     assert other.get_params()["module__hidden_size"] == 6
-    assert other.get_params()["window"] == 40
+    assert other.get_params()["window_s"] == 4.0
     other.fit(Xb, y)
     first = other.module_.gru if Est is GRUResidual else other.module_.mlp[0]
     assert (first.hidden_size if Est is GRUResidual else first.out_features) == 6
@@ -593,16 +593,17 @@ def test_clone_and_nested_params(Est, small, fitted):
 
 def test_default_parameters():
     gru, mlp = GRUResidual(), MLPResidual()
-    assert gru.get_params()["burn_in"] == 50
-    assert mlp.get_params()["burn_in"] == 0  # no hidden state to warm up
+    assert gru.get_params()["burn_in_s"] == 5.0
+    assert mlp.get_params()["burn_in_s"] == 0.0  # no hidden state to warm up
     for est in (gru, mlp):
         p = est.get_params()
-        assert (p["window"], p["clip"], p["lr"], p["use_torque"], p["use_context"]) == (
-            200, 25.0, 1e-2, True, True
+        assert (p["window_s"], p["clip"], p["lr"], p["use_torque"], p["use_context"]) == (
+            20.0, 25.0, 1e-2, True, True
         )
         assert (p["lr_schedule"], p["optimizer__weight_decay"]) == ("cosine", 1e-4)
-        assert (p["sweep_stride"], p["sweep_pooling"]) == (40, "mean")
-    assert clone(mlp).get_params()["burn_in"] == 0
+        assert (p["sweep_stride_s"], p["sweep_pooling"]) == (4.0, "mean")
+        assert p["window_step_s"] is None
+    assert clone(mlp).get_params()["burn_in_s"] == 0.0
 
 
 @pytest.mark.parametrize("Est", LEARNERS)
@@ -761,13 +762,18 @@ def test_fit_needs_y(Est, small):
 @pytest.mark.parametrize(
     "params, name",
     [
-        (dict(window=1), "window"),
-        (dict(burn_in=50, window=50), "burn_in"),
-        (dict(burn_in=-1), "burn_in"),
+        (dict(window_s=0.1, burn_in_s=0.0), "window_s=0.1 s is 1 sample"),
+        (dict(window_s=0.0), "window_s"),
+        (dict(burn_in_s=5.0, window_s=5.0), "burn_in_s"),
+        (dict(burn_in_s=-1.0), "burn_in_s"),
+        (dict(burn_in_s=4.98, window_s=5.0), "burn_in_s=4.98 s is 50 samples"),
+        (dict(window_step_s=6.0), "window_step_s"),
+        (dict(window_step_s=0.01), "window_step_s=0.01 s is 0 sample"),
+        (dict(sweep_stride_s=0.04), "sweep_stride_s=0.04 s is 0 sample"),
         (dict(validation_fraction=1.5), "validation_fraction"),
         (dict(validation_fraction=0.0), "validation_fraction"),
         (dict(clip=0.0), "clip"),
-        (dict(sweep_stride=0), "sweep_stride"),
+        (dict(sweep_stride_s=0.0), "sweep_stride_s"),
         (dict(sweep_pooling="max"), "sweep_pooling"),
         (dict(n_threads=0), "n_threads"),
         (dict(lr=-1.0), "lr"),
@@ -886,8 +892,8 @@ def test_pretrained_errors(Est, small, fitted):
     with pytest.raises(ValueError, match="frame"):
         tiny_residual(Est, frame="base", pretrained=FrozenEstimator(source)).fit(Xb, y)
     # the encoder learned sweeps shortened in one way
-    with pytest.raises(ValueError, match="sweep_stride=50"):
-        tiny_residual(Est, sweep_stride=25, pretrained=FrozenEstimator(source)).fit(Xb, y)
+    with pytest.raises(ValueError, match="sweep_stride_s=5.0"):
+        tiny_residual(Est, sweep_stride_s=2.5, pretrained=FrozenEstimator(source)).fit(Xb, y)
     with pytest.raises(ValueError, match="sweep_pooling='mean'"):
         tiny_residual(Est, sweep_pooling="subsample", pretrained=FrozenEstimator(source)).fit(Xb, y)
 
@@ -916,7 +922,7 @@ def test_warm_start_continues_training(Est, small):
 
 @pytest.mark.parametrize("Est", LEARNERS)
 def test_whole_sequence_training(Est, small, monkeypatch):
-    # window=None: one training item per run, every step in the loss
+    # window_s=None: one training item per run, every step in the loss
     _, Xb, y = small
     calls = []
     original = Est.get_split_datasets
@@ -926,7 +932,7 @@ def test_whole_sequence_training(Est, small, monkeypatch):
         return original(self, X, y, **fit_params)
 
     monkeypatch.setattr(Est, "get_split_datasets", spy)
-    est = tiny_residual(Est, window=None, burn_in=500).fit(Xb, y)
+    est = tiny_residual(Est, window_s=None, burn_in_s=50.0).fit(Xb, y)
     data = calls[0]
     assert data["features"].shape == (len(SMALL_SETTINGS), N_MOTION, 9)
     assert data["mask"].sum() == _motion(Xb).sum()
@@ -1356,8 +1362,8 @@ def test_gru_beats_its_backbone_on_held_out_settings(bench, transformed):
         lr=3e-3,
         max_epochs=8,
         batch_size=32,
-        window=100,
-        burn_in=20,
+        window_s=10.0,
+        burn_in_s=2.0,
         random_state=0,
         n_threads=1,
     )

@@ -34,7 +34,7 @@ for _sensor in ("tip", "base"):
         COLUMNS[f"{_sensor}_{_kind}"] = [f"{_sensor}_{_kind}_{c}" for c in _axes]
 #: The learners of the benchmark, tiny: the tests check the plumbing, not accuracy.
 TINY = dict(
-    use_context=False, frame="base", window=100, burn_in=20, window_step=10,
+    use_context=False, frame="base", window_s=10.0, burn_in_s=2.0, window_step_s=1.0,
     batch_size=32, module__hidden_size=8, n_threads=1, max_epochs=2, random_state=0,
 )
 
@@ -211,7 +211,7 @@ def test_hidden_targets_are_skipped_by_the_whole_pipeline(synthetic_folder):
     def fitted(target):
         return Pipeline([
             ("backbone", PolynomialBackbone(degree=3, calibration="fit")),
-            ("residual", MLPResidual(**{**TINY, "burn_in": 0})),
+            ("residual", MLPResidual(**{**TINY, "burn_in_s": 0.0})),
         ]).fit(X, target)
 
     pred = fitted(y_hidden).predict(X)

@@ -54,7 +54,6 @@ from skcath.io import read_recording
 from skcath.metrics import run_rmse_scorer
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual, NoResidual
-from skcath.sequences import run_rates
 
 catheter = sample_catheter(3, "C3")
 tmp = tempfile.TemporaryDirectory()
@@ -126,20 +125,18 @@ X_arm.head()
 # once on the training runs (``calibration="fit"``). The residual learner
 # reads no sweep either: no context (``use_context=False``) and the base
 # frame (``frame="base"``: the sweep frame is fitted on a run's sweep), and
-# no torque (``use_torque=False``). Its time scales count samples at the
-# rate it is fitted at, so they are set for 4 Hz: a window of 20 s is 80
-# samples, a burn-in of 5 s is 20. ``SettingGroupKFold(4)`` holds out two
-# trials per fold.
+# no torque (``use_torque=False``). Its time scales are given in seconds and
+# counted in samples at the rate it is fitted at: the default window of 20 s
+# is 80 samples at 4 Hz, the burn-in of 5 s is 20. ``SettingGroupKFold(4)``
+# holds out two trials per fold.
 
 
-def pipelines(rate_hz):
-    """The polynomial alone and with a GRU residual, time scales at ``rate_hz``."""
+def pipelines():
+    """The polynomial alone and with a GRU residual (default time scales, in seconds)."""
     gru = GRUResidual(
         use_context=False,
         frame="base",
         use_torque=False,
-        window=round(20 * rate_hz),
-        burn_in=round(5 * rate_hz),
         max_epochs=15,
         module__hidden_size=16,
         n_threads=1,
@@ -159,7 +156,7 @@ def held_out_errors(X, y, n_splits):
     """Mean per-run RMSE (mm) of the held-out trials of every fold, for both pipelines."""
     errors = {}
     cv = SettingGroupKFold(n_splits)
-    for name, pipe in pipelines(run_rates(X).median()).items():
+    for name, pipe in pipelines().items():
         scores = cross_validate(pipe, X, y, cv=cv, scoring=run_rmse_scorer)
         errors[name] = -scores["test_score"]
     return pd.DataFrame(errors, index=pd.Index(range(1, n_splits + 1), name="fold"))

@@ -21,6 +21,7 @@ from sklearn.utils import Bunch
 from sklearn.utils._param_validation import Interval, StrOptions, validate_parameter_constraints
 
 from .. import _format as fmt
+from ._detector_rate import check_detector_rate
 from ._sample import CHANNELS, real_sample
 
 __all__ = ["ShaftChangeDetector"]
@@ -99,7 +100,11 @@ class ShaftChangeDetector(BaseEstimator):
         Alarm threshold on the CUSUM statistic (dimensionless, in units of
         the sweep residual's standard deviation times samples). Larger: fewer
         false alarms, longer delays. The default was chosen on catheter
-        ``C1`` of the simulated benchmark (``benchmarks/bench_shaft_change.py``).
+        ``C1`` of the simulated benchmark (``benchmarks/bench_shaft_change.py``)
+        at 10 Hz. The statistic adds one term per sample, so ``threshold``
+        and ``drift`` are per-sample values: ``start`` warns
+        (:class:`~skcath.exceptions.SampleRateWarning`) when either keeps
+        its default at a rate more than 10 % from 10 Hz.
     drift : float, default=1.5
         Allowance subtracted from each normalised residual (dimensionless):
         a persistent residual smaller than ``drift`` standard deviations is
@@ -111,8 +116,10 @@ class ShaftChangeDetector(BaseEstimator):
         Time after ``start`` during which the statistic is not updated (s);
         the torque model's direction state still follows the motors.
     rate_hz : float, default=10.0
-        Sampling rate of the samples given to ``step`` (Hz); converts sample
-        counts to seconds.
+        Sampling rate of the samples given to ``step`` (Hz); converts
+        ``warm_up_s`` to samples and sample counts to seconds. ``start``
+        warns when the sweep's times ``t`` (if given) are at a rate more
+        than 10 % from it.
     model : {"hysteresis", "static"}, default="hysteresis"
         Torque model: with the direction-of-motion terms, or a function of
         the motor angles only.
@@ -294,6 +301,7 @@ class ShaftChangeDetector(BaseEstimator):
             )
         if fmt.PHASE in sweep.columns:
             sweep = sweep[(sweep[fmt.PHASE] == fmt.SWEEP).to_numpy()]
+        check_detector_rate(self, sweep)
         q, tau = self._check_signals(sweep[list(fmt.MOTOR_COLUMNS)], sweep[list(fmt.TORQUE_COLUMNS)])
         n_features = 2 * self.n_knots + 2 if self.model == "hysteresis" else self.n_knots + 1
         if len(q) < 4 * n_features:

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from ..residuals import GRUResidualModule
+from ..residuals._time_scales import fitted_sweep_stride
 
 __all__ = [
     "StepWeights",
@@ -169,7 +170,7 @@ def fitted_fingerprint(backbone, residual):
     if residual is None:
         return h.hexdigest()
     keys = (residual.frame, residual.clip, residual.use_torque, residual.use_context,
-            residual.sweep_stride, getattr(residual, "sweep_pooling", None))
+            fitted_sweep_stride(residual), getattr(residual, "sweep_pooling", None))
     h.update(repr((type(residual).__name__, keys)).encode())
     for name, tensor in residual.module_.state_dict().items():
         h.update(name.encode())

@@ -84,7 +84,7 @@ QUICK = Schedule(
     name="quick",
     seeds=(0,),
     n_setting_folds=4,
-    model_params={"module__hidden_size": 64, "window_step": 200},
+    model_params={"module__hidden_size": 64, "window_step_s": 20.0},
     pretrain_params={"max_epochs": 4, "lr": 1e-2},
     finetune_params={"max_epochs": 3, "lr": 3e-3},
 )

@@ -12,7 +12,6 @@ of every run; prediction runs every motion sequence from its start.
 from __future__ import annotations
 
 import copy
-import inspect
 from contextlib import contextmanager
 from numbers import Integral, Real
 
@@ -49,6 +48,8 @@ from ._features import (
     weighted_mean_std,
 )
 from ._modules import GRUResidualModule, MaskedNormalizedMSE, MLPResidualModule, on_cpu
+from ._same_network import check_same_network
+from ._time_scales import at_model_rate, check_renamed, fitted_sweep_stride, time_scales
 
 __all__ = [
     "GRUResidual",
@@ -194,10 +195,11 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
     _target_required = True
 
     _parameter_constraints: dict = {
-        "window": [Interval(Integral, 2, None, closed="left"), None],
-        "window_step": [Interval(Integral, 1, None, closed="left"), None],
-        "burn_in": [Interval(Integral, 0, None, closed="left")],
-        "sweep_stride": [Interval(Integral, 1, None, closed="left")],
+        "window_s": [Interval(Real, 0, None, closed="neither"), None],
+        "window_step_s": [Interval(Real, 0, None, closed="neither"), None],
+        "burn_in_s": [Interval(Real, 0, None, closed="left")],
+        "sweep_stride_s": [Interval(Real, 0, None, closed="neither")],
+        "rate_hz": [Interval(Real, 0, None, closed="neither"), None],
         "sweep_pooling": [StrOptions({"mean", "subsample"})],
         "use_torque": ["boolean"],
         "use_context": ["boolean"],
@@ -223,10 +225,11 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         lr_schedule="cosine",
         max_epochs=40,
         batch_size=64,
-        window=200,
-        window_step=None,
-        burn_in=50,
-        sweep_stride=40,
+        window_s=20.0,
+        window_step_s=None,
+        burn_in_s=5.0,
+        sweep_stride_s=4.0,
+        rate_hz=None,
         sweep_pooling="mean",
         use_torque=True,
         use_context=True,
@@ -241,6 +244,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         verbose=0,
         **kwargs,
     ):
+        check_renamed(type(self).__name__, kwargs)
         kwargs.setdefault("iterator_train__shuffle", True)
         kwargs.setdefault("optimizer__weight_decay", 1e-4)
         super().__init__(
@@ -255,10 +259,11 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             **kwargs,
         )
         self.lr_schedule = lr_schedule
-        self.window = window
-        self.window_step = window_step
-        self.burn_in = burn_in
-        self.sweep_stride = sweep_stride
+        self.window_s = window_s
+        self.window_step_s = window_step_s
+        self.burn_in_s = burn_in_s
+        self.sweep_stride_s = sweep_stride_s
+        self.rate_hz = rate_hz
         self.sweep_pooling = sweep_pooling
         self.use_torque = use_torque
         self.use_context = use_context
@@ -269,6 +274,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.n_iter_no_change = n_iter_no_change
         self.n_threads = n_threads
         self.random_state = random_state
+
+    def set_params(self, **kwargs):
+        check_renamed(type(self).__name__, kwargs, ValueError)
+        return super().set_params(**kwargs)
 
     # ------------------------------------------------------------------ skorch hooks
     def get_default_callbacks(self):
@@ -361,17 +370,17 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         validate_parameter_constraints(
             self._parameter_constraints, params, caller_name=type(self).__name__
         )
-        if self.window is not None and self.burn_in >= self.window:
+        if self.window_s is not None and self.burn_in_s >= self.window_s:
             raise ValueError(
-                f"burn_in must be smaller than window; got burn_in={self.burn_in}, "
-                f"window={self.window}."
+                f"burn_in_s must be shorter than window_s; got burn_in_s={self.burn_in_s} s, "
+                f"window_s={self.window_s} s."
             )
-        if self.window_step is not None and (
-            self.window is None or self.window_step > self.window
+        if self.window_step_s is not None and (
+            self.window_s is None or self.window_step_s > self.window_s
         ):
             raise ValueError(
-                "window_step must be at most window so that the windows cover every "
-                f"motion step; got window_step={self.window_step}, window={self.window}."
+                "window_step_s must be at most window_s so that the windows cover every "
+                f"motion step; got window_step_s={self.window_step_s}, window_s={self.window_s}."
             )
 
     def _check_X(self, X, y=None):
@@ -455,7 +464,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             )
         keys = ["use_torque", "use_context", "frame"]
         if self.use_context:  # the encoder learned sweeps shortened this way
-            keys += ["sweep_stride", "sweep_pooling"]
+            keys += ["sweep_stride_s", "sweep_pooling"]
         for key in keys:
             theirs = _sweep_pooling(source) if key == "sweep_pooling" else getattr(source, key)
             if theirs != getattr(self, key):
@@ -538,9 +547,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         self.sigma_e_ = np.maximum(sigma, max(1e-6, 1e-6 * float(sigma.max())))
 
     def _context_input(self, sweep, dtype=np.float32):
-        """Normalised sweep pooled over blocks of ``sweep_stride``, and its valid lengths."""
+        """Normalised sweep pooled over blocks of ``sweep_stride_``, and its valid lengths."""
         pooling = _sweep_pooling(self)
-        pooled, lengths = pool_sweep(sweep.values, sweep.lengths, self.sweep_stride, pooling)
+        stride = fitted_sweep_stride(self)
+        pooled, lengths = pool_sweep(sweep.values, sweep.lengths, stride, pooling)
         values = self.s_scaler_.transform(pooled).astype(dtype)
         valid = np.arange(values.shape[1])[None, :] < lengths[:, None]
         values[~valid] = 0.0
@@ -556,13 +566,10 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         features = self.x_scaler_.transform(motion.values).astype(np.float32)
         features[~motion.mask] = 0.0
         target = (motion.target / self.sigma_e_).astype(np.float32)
-        step = self.window_step
-        if step is None and self.window is not None:
-            step = max(self.window - self.burn_in, 1)
-        run_index, start = cut_windows(motion.lengths, self.window, step)
+        run_index, start = cut_windows(motion.lengths, self.window_, self.window_step_)
         if run_index.size == 0:
             raise ValueError("No run of X has motion rows to train on.")
-        width = motion.max_length if self.window is None else self.window
+        width = motion.max_length if self.window_ is None else self.window_
         steps = start[:, None] + np.arange(width)[None, :]
         inside = steps < motion.lengths[run_index][:, None]
         steps = np.minimum(steps, motion.max_length - 1)
@@ -572,7 +579,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         loss_mask = inside & motion.target_mask[rows, steps]
         # Windows that start inside a run begin from a zero hidden state that
         # the run never had: their first burn_in steps only warm the state up.
-        warm = (start > 0)[:, None] & (np.arange(width)[None, :] < self.burn_in)
+        warm = (start > 0)[:, None] & (np.arange(width)[None, :] < self.burn_in_)
         loss_mask = (loss_mask & ~warm).astype(np.float32)
         keep = slice(None)
         if sample_weight is not None:
@@ -606,7 +613,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             self.initialize()
             source = self._pretrained_source()
             if source is not None:
-                _check_same_network(self, source)
+                check_same_network(self, source)
                 self.module_.load_state_dict(copy.deepcopy(source.module_.state_dict()))
                 self.x_scaler_, self.s_scaler_ = source.x_scaler_, source.s_scaler_
                 self.sigma_e_ = source.sigma_e_.copy()
@@ -631,18 +638,23 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
             raise ValueError(
                 f"This {name} counts time in samples at {known:.4g} Hz, the rate it was first "
                 f"fitted (or pretrained) at, but these training runs are at {rate:.4g} Hz. "
-                "Resample them to that rate first (skcath.sequences.resample_runs), or fit "
-                "a new model."
+                f"Pass rate_hz={known:.4g} to train on them resampled to that rate, or fit a "
+                "new model."
             )
+        scales = time_scales(self, self.rate_hz_)  # in samples at the fitted rate
+        self.window_, self.window_step_ = scales.window, scales.window_step
+        self.burn_in_, self.sweep_stride_ = scales.burn_in, scales.sweep_stride
 
     def _partial_fit(self, X, y, sample_weight=None, **fit_params):
         """Train the initialised network for ``max_epochs`` on checked recordings."""
+        given = X  # its columns are those predict checks
+        X, y, sample_weight = at_model_rate(X, y, sample_weight, self.rate_hz, type(self).__name__)
         self._record_rate(X)
         F, motion, sweep, e, _ = self._sequences(X, y)
         if not hasattr(self, "sigma_e_"):
             self._fit_statistics(F, e, sample_weight)
         data, target = self._training_windows(X, motion, sweep, sample_weight)
-        self._record_columns(X)
+        self._record_columns(given)
         seed = self._seed()
         self._split_seed_ = None if seed is None else seed + 1
         if seed is not None:
@@ -791,7 +803,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         """Sweep context ``z`` of every run of ``X``, as the network computes it in ``predict``.
 
         The sweep rows of each run are gathered (:func:`skcath.sequences.to_padded`,
-        in float64), pooled over blocks of ``sweep_stride`` samples and
+        in float64), pooled over blocks of ``sweep_stride_`` samples and
         normalised as in ``predict``, then encoded by the network's encoder
         on the CPU (a CPU copy of the encoder when the network was trained on
         another ``device``).
@@ -854,52 +866,6 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         return self.predict_residual(X) + nominal_tip(X)
 
 
-def _module_arguments(learner):
-    """The arguments the learner's network is built with: its defaults, then ``module__*``."""
-    module = learner.module
-    defaults = {}
-    if isinstance(module, type):
-        for name, p in inspect.signature(module.__init__).parameters.items():
-            if p.default is not inspect.Parameter.empty:
-                defaults[name] = p.default
-    return {**defaults, **learner.get_params_for("module")}
-
-
-def _check_same_network(learner, source):
-    """Raise a clear error unless ``source``'s network has the shape of ``learner``'s.
-
-    Names each ``module__*`` argument that differs, with both values, or else
-    each weight whose shape differs; called before the weights of
-    ``pretrained`` are loaded.
-    """
-    mine, theirs = learner.module_.state_dict(), source.module_.state_dict()
-    shapes = {k: tuple(v.shape) for k, v in mine.items()}
-    their_shapes = {k: tuple(v.shape) for k, v in theirs.items()}
-    if type(learner.module_) is type(source.module_) and shapes == their_shapes:
-        return
-    if type(learner.module_) is not type(source.module_):
-        differences = [
-            f"module={type(learner.module_).__name__} here, "
-            f"{type(source.module_).__name__} in pretrained"
-        ]
-    else:
-        here, there = _module_arguments(learner), _module_arguments(source)
-        differences = [
-            f"module__{k}={here.get(k)!r} here, {there.get(k)!r} in pretrained"
-            for k in sorted(set(here) | set(there))
-            if here.get(k) != there.get(k)
-        ] or [
-            f"weight {k!r} of shape {shapes.get(k)} here, {their_shapes.get(k)} in pretrained"
-            for k in sorted(set(shapes) | set(their_shapes))
-            if shapes.get(k) != their_shapes.get(k)
-        ]
-    raise ValueError(
-        f"pretrained has another network than this {type(learner).__name__}: "
-        f"{'; '.join(differences)}. Give this estimator the module and module__* "
-        "parameters pretrained was fitted with."
-    )
-
-
 def _setting_codes(X, runs):
     """Code of the (catheter, setting) pair of every run, for group-aware validation."""
     cols = [c for c in (fmt.CATHETER, fmt.SETTING) if c in X.columns]
@@ -919,27 +885,40 @@ _COMMON_PARAMS = """
         Passes over the training windows per call of ``fit``.
     batch_size : int, default=64
         Windows per optimisation step (and runs per batch in ``predict``).
-    window : int or None, default=200
-        Length of the training windows (motion steps). Every time scale of
-        the learner counts samples at the rate of its training runs,
-        ``rate_hz_`` (200 steps are 20 s at 10 Hz); recordings at another
-        rate are brought to it in ``predict`` (``docs/residuals.rst``,
-        *Sample rates*). Whole motion sequences
-        are cut into overlapping windows so that a batch holds many of them;
-        None trains on whole sequences (one item per run).
-    window_step : int, default=None
-        Distance between window starts; defaults to ``window - burn_in``.
-    burn_in : int, default=50
-        Leading steps of a window that starts inside a run, excluded from the
-        loss: they warm the hidden state up from zero. Windows that start at
-        the beginning of a motion sequence count from step 0, as in prediction.
-    sweep_stride : int, default=40
-        Samples of the sweep per step of the context encoder (4 s at 10 Hz):
-        the sweep sequence is shortened by this factor before encoding.
+    window_s : float or None, default=20.0
+        Length of the training windows (s). Every time scale is given in
+        seconds and turned by ``fit`` into the nearest whole number of
+        samples at the rate of the training runs, ``round(seconds *
+        rate_hz_)`` (20.0 s: 200 samples at 10 Hz, 800 at 40 Hz), kept in
+        ``window_``, ``window_step_``, ``burn_in_``, ``sweep_stride_``;
+        recordings at another rate are brought to ``rate_hz_`` in
+        ``predict`` (``docs/residuals.rst``, *Sample rates*). Whole motion
+        sequences are cut into overlapping windows so that a batch holds
+        many of them (at least 2 samples each); None trains on whole
+        sequences (one item per run).
+    window_step_s : float or None, default=None
+        Time between window starts (s); None: ``window_s - burn_in_s`` (in
+        samples). At most ``window_s``.
+    burn_in_s : float, default=5.0
+        Leading time of a window that starts inside a run, excluded from the
+        loss (s): it warms the hidden state up from zero. Windows that start
+        at the beginning of a motion sequence count from step 0, as in
+        prediction. Shorter than ``window_s`` in samples.
+    sweep_stride_s : float, default=4.0
+        Time of the sweep per step of the context encoder (s; 40 samples at
+        10 Hz, at least 1): the sweep sequence is shortened by this factor
+        before encoding.
+    rate_hz : float or None, default=None
+        Rate at which the network steps (Hz). None: the rate of the training
+        runs. A rate (e.g. 10.0 for recordings at 100 Hz) resamples the
+        training runs onto ticks at that rate before training, as ``predict``
+        resamples any run at another rate (``docs/residuals.rst``, *Sample
+        rates*; ``docs/studies/rates.rst`` measures it).
     sweep_pooling : {"mean", "subsample"}, default="mean"
-        How ``sweep_stride`` samples become one encoder step: their mean,
-        which averages out the measurement noise of the drive torques, or
-        the first of them (the earlier behaviour, kept for comparison).
+        How the samples of a block of ``sweep_stride_s`` become one encoder
+        step: their mean, which averages out the measurement noise of the
+        drive torques, or the first of them (the earlier behaviour, kept for
+        comparison).
     use_torque : bool, default=True
         Include the drive torques in the step features and the sweep
         features. Recordings without torque columns need False; with True
@@ -1007,7 +986,11 @@ _COMMON_ATTRIBUTES = """
         (``skcath._rate.RATE_TOLERANCE``); ``predict`` resamples a run
         recorded at another rate, or unevenly, onto ticks at this rate and
         refuses one slower than a fifth of it. None when no training run
-        has two rows.
+        has two rows (the time scales then count at 10 Hz).
+    window_, window_step_, burn_in_, sweep_stride_ : int or None
+        ``window_s``, ``window_step_s`` (or its default), ``burn_in_s`` and
+        ``sweep_stride_s`` in samples at ``rate_hz_``; ``window_`` and
+        ``window_step_`` are None with ``window_s=None``.
     history_ : skorch.History
         Per-epoch training (and validation) loss.
     n_motors_ : int
@@ -1022,7 +1005,7 @@ class GRUResidual(_ResidualNet):
     __doc__ = f"""Sweep-context GRU residual learner (the paper's estimator).
 
     For every run, the normalised sweep features ``s = [q, tau]``, averaged
-    over blocks of ``sweep_stride`` samples, are encoded once into a context
+    over blocks of ``sweep_stride_s`` seconds, are encoded once into a context
     ``z``. Along the motion sequence, the per-step features
 
     .. math::
@@ -1091,8 +1074,8 @@ class MLPResidual(_ResidualNet):
     The same inputs as :class:`GRUResidual` (step features ``[q, dq, tau, b]``
     and the sweep context ``z``), mapped step by step by an MLP without
     recurrence: ``e_t = sigma_e * MLP([x_t; z])``. Training and prediction
-    are as for :class:`GRUResidual`; ``window`` only groups steps into
-    batches.
+    are as for :class:`GRUResidual`; ``window_s`` only groups steps into
+    batches (``burn_in_s`` defaults to 0: no hidden state to warm up).
 
     Parameters
     ----------
@@ -1109,5 +1092,5 @@ class MLPResidual(_ResidualNet):
     """
 
     def __init__(self, module=MLPResidualModule, **kwargs):
-        kwargs.setdefault("burn_in", 0)
+        kwargs.setdefault("burn_in_s", 0.0)
         super().__init__(module, **kwargs)
