@@ -281,12 +281,16 @@ def test_training_runs_at_two_rates_are_refused(train, held):
     with pytest.raises(ValueError, match=r"GRUResidual learns time in samples, so its training "
                        r"runs must share one sample rate; most rows are at 40 Hz, but "
                        r"run\(s\) 'r0' at 10 Hz, 'r1' at 10 Hz, 'r2' at 10 Hz differ"):
-        tiny_residual(GRUResidual).fit(both, np.vstack([y, y40]))
-    fitted = tiny_residual(GRUResidual, max_epochs=1).fit(Xb, y)
+        tiny_residual(GRUResidual, rate_hz=None).fit(both, np.vstack([y, y40]))
+    # by default the network steps at 10 Hz, and the 40 Hz runs are resampled
+    mixed = tiny_residual(GRUResidual, max_epochs=1).fit(both, np.vstack([y, y40]))
+    assert mixed.rate_hz_ == pytest.approx(10.0, rel=1e-6)
+    fitted = tiny_residual(GRUResidual, max_epochs=1, rate_hz=None).fit(Xb, y)
     with pytest.raises(ValueError, match=r"counts time in samples at 10 Hz, the rate it was "
                        r"first fitted \(or pretrained\) at, but these training runs are at 40 Hz"):
         fitted.partial_fit(Xb40, y40)
-    tuned = tiny_residual(GRUResidual, max_epochs=1, pretrained=FrozenEstimator(fitted))
+    tuned = tiny_residual(GRUResidual, max_epochs=1, rate_hz=None,
+                          pretrained=FrozenEstimator(fitted))
     with pytest.raises(ValueError, match="counts time in samples at 10 Hz"):
         tuned.fit(Xb40, y40)
     assert tuned.fit(Xb, y).rate_hz_ == fitted.rate_hz_

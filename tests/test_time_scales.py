@@ -77,10 +77,12 @@ def _fitted_windows(learner, X, y, monkeypatch):
 
 
 def test_the_defaults_are_the_same_time_at_10_and_40_hz(runs, monkeypatch):
+    # A network stepping at the recordings' own rate (rate_hz=None) counts the
+    # default time scales in samples at that rate.
     fitted = {}
     for rate in (10.0, 40.0):
         X, y = runs(rate)
-        fitted[rate] = _fitted_windows(GRUResidual(**SMALL), X, y, monkeypatch)
+        fitted[rate] = _fitted_windows(GRUResidual(rate_hz=None, **SMALL), X, y, monkeypatch)
     slow, fast = fitted[10.0][0], fitted[40.0][0]
     assert (slow.window_, slow.window_step_, slow.burn_in_, slow.sweep_stride_) == (200, 150, 50, 40)
     assert (fast.window_, fast.window_step_, fast.burn_in_, fast.sweep_stride_) == (
@@ -96,6 +98,27 @@ def test_the_defaults_are_the_same_time_at_10_and_40_hz(runs, monkeypatch):
     # the burn-in masks 5 s of a window that starts inside the run
     inside = fast_data["mask"][1]
     assert not inside[:200].any() and inside[200:].any()
+
+
+def test_by_default_the_network_steps_every_tenth_of_a_second(runs, monkeypatch):
+    # rate_hz=10.0: 40 Hz recordings are trained on at 10 Hz ticks, with the
+    # windows, blocks and sweep of a model fitted at 10 Hz.
+    X10, y10 = runs(10.0)
+    X40, y40 = runs(40.0)
+    slow, slow_data = _fitted_windows(GRUResidual(**SMALL), X10, y10, monkeypatch)
+    fast, fast_data = _fitted_windows(GRUResidual(**SMALL), X40, y40, monkeypatch)
+    assert GRUResidual().rate_hz == MLPResidual().rate_hz == 10.0
+    assert fast.rate_hz_ == pytest.approx(10.0, rel=1e-6)
+    assert (fast.window_, fast.window_step_, fast.burn_in_, fast.sweep_stride_) == (
+        200, 150, 50, 40)
+    assert fast_data["features"].shape[1] == slow_data["features"].shape[1] == 200
+    assert abs(int(fast_data["sweep_length"][0]) - int(slow_data["sweep_length"][0])) <= 1
+    # at 10 Hz the default changes nothing: the runs are taken as they are
+    native, native_data = _fitted_windows(GRUResidual(rate_hz=None, **SMALL), X10, y10,
+                                          monkeypatch)
+    assert native.rate_hz_ == slow.rate_hz_
+    for key in ("features", "mask"):
+        np.testing.assert_array_equal(native_data[key], slow_data[key])
 
 
 def test_the_conversion_is_exact_at_the_benchmark_rate(runs):
@@ -123,7 +146,8 @@ def test_a_time_scale_too_short_at_the_fitted_rate_names_its_parameter(runs):
     # 0.04 s is 2 samples at 40 Hz (1.6) but 0 at 10 Hz (0.4)
     X40, y40 = runs(40.0)
     pipe = Pipeline([("backbone", PDLBackbone()),
-                     ("residual", GRUResidual(sweep_stride_s=0.04, **SMALL))]).fit(X40, y40)
+                     ("residual", GRUResidual(sweep_stride_s=0.04, rate_hz=None, **SMALL))])
+    pipe.fit(X40, y40)
     assert pipe.named_steps["residual"].sweep_stride_ == 2
     X10, y10 = runs(10.0)
     residual = GRUResidual(sweep_stride_s=0.04, **SMALL)

@@ -229,7 +229,7 @@ class _ResidualNet(RecordingsMixin, NeuralNetRegressor):
         window_step_s=None,
         burn_in_s=5.0,
         sweep_stride_s=4.0,
-        rate_hz=None,
+        rate_hz=10.0,
         sweep_pooling="mean",
         use_torque=True,
         use_context=True,
@@ -908,12 +908,14 @@ _COMMON_PARAMS = """
         Time of the sweep per step of the context encoder (s; 40 samples at
         10 Hz, at least 1): the sweep sequence is shortened by this factor
         before encoding.
-    rate_hz : float or None, default=None
-        Rate at which the network steps (Hz). None: the rate of the training
-        runs. A rate (e.g. 10.0 for recordings at 100 Hz) resamples the
-        training runs onto ticks at that rate before training, as ``predict``
-        resamples any run at another rate (``docs/residuals.rst``, *Sample
-        rates*; ``docs/studies/rates.rst`` measures it).
+    rate_hz : float or None, default=10.0
+        Rate at which the network steps (Hz): by default one step of the
+        motor-step features and of the recurrent state is 0.1 s, at any
+        recording rate. Training runs at another rate (beyond 10 %) are resampled onto
+        ticks at this rate before training, as ``predict`` resamples any run
+        at another rate (``docs/residuals.rst``, *Sample rates*;
+        ``docs/studies/rates.rst`` measures it). None: the network steps at
+        the rate of the training runs, whatever it is.
     sweep_pooling : {"mean", "subsample"}, default="mean"
         How the samples of a block of ``sweep_stride_s`` become one encoder
         step: their mean, which averages out the measurement noise of the

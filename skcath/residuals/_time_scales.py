@@ -193,8 +193,8 @@ def fitted_sweep_stride(learner) -> int:
 def at_model_rate(X, y, sample_weight, rate_hz, owner):
     """Training recordings, targets and weights brought to a learner's ``rate_hz``.
 
-    None (the default of the learners' ``rate_hz``) keeps them as they are.
-    Otherwise every run not at ``rate_hz`` within ``RATE_TOLERANCE`` is
+    None keeps them as they are. Otherwise (the learners' default is 10 Hz)
+    every run not at ``rate_hz`` within ``RATE_TOLERANCE`` is
     resampled onto its ticks at ``rate_hz`` as ``predict`` does
     (:func:`skcath._rate.to_model_rate`): the channels, the backbone's tip,
     the measured tip ``y`` and the weights are interpolated linearly in time
@@ -210,7 +210,14 @@ def at_model_rate(X, y, sample_weight, rate_hz, owner):
     extra = {f"__tip{k}": y[:, k] for k in range(y.shape[1])}
     if sample_weight is not None:
         extra["__weight"] = sample_weight
-    at_rate = to_model_rate(X.assign(**extra), float(rate_hz), owner)
+    try:
+        at_rate = to_model_rate(X.assign(**extra), float(rate_hz), owner)
+    except ValueError as exc:
+        raise ValueError(
+            f"{owner}(rate_hz={rate_hz:g}) steps its network at {rate_hz:g} Hz and brings the "
+            f"training runs to that rate: {exc} Pass rate_hz=None to step at the training "
+            "runs' own rate, or a lower rate_hz."
+        ) from None
     if at_rate is None:
         return X, y, sample_weight
     Z = at_rate.X
