@@ -38,11 +38,12 @@ from skcath.exceptions import (
     TruncatedFileWarning,
 )
 from skcath.frames import tip_in_base_frame
-from skcath.io import read_recording, read_streams
+from skcath.io import read_recording, read_recordings, read_streams
 from skcath.model_selection import BlockKFold, LeaveOneSettingOut
 from skcath.online import MotorRecalibration, OnlineEstimator, ShaftChangeDetector
 from skcath.residuals import GRUResidual, NoResidual
 from skcath.sweep import find_rays
+from test_sweep_end import _export as _rig_export
 from test_validation import make_recordings
 
 REFERENCE = ["ref_x", "ref_y", "ref_z"]
@@ -624,8 +625,6 @@ def _read_as_streams(path):
 
 
 def _read_folder(path):
-    from skcath.io import read_recordings
-
     _recording_csv(path.with_name("a_good.csv"))
     read_recordings(path.parent, n_sweep=None, progress=False)
 
@@ -1470,3 +1469,75 @@ def test_simulator_resweep_of_other_numbers_of_motors_is_refused():
     with pytest.raises(ValueError, match=r"resweep=True is simulated for two motors only; "
                        r"got n_motors=3"):
         make_benchmark(n_motors=3, shaft_change=True, resweep=True, cache=False)
+
+
+# ---------------------------------------------------------------------------
+# where the sweep ends: n_sweep="auto" on a start that is not a sweep, a wrong
+# n_sweep given for one run of several
+# ---------------------------------------------------------------------------
+def _rig_folder(bench, folder, breaker=None):
+    """The bench runs as a rig exports them (no phase column), ``breaker`` applied to the second.
+
+    Returns the paths, one file ``run0.csv``, ``run1.csv`` ... per run, and
+    the true sweep length of each run.
+    """
+    X, y = bench
+    paths, n_sweeps = [], []
+    for k, run in enumerate(pd.unique(X["run"])):
+        rows = (X["run"] == run).to_numpy()
+        run_X, run_y = X[rows], y[rows]
+        if k == 1 and breaker is not None:
+            run_X, run_y = breaker(run_X, run_y)
+        paths.append(_rig_export(run_X, run_y, folder / f"run{k}.csv"))
+        n_sweeps.append(int((run_X["phase"] == "sweep").sum()))
+    return paths, n_sweeps
+
+
+def _in_radians(X, y):
+    return X.assign(q1=np.deg2rad(X["q1"]), q2=np.deg2rad(X["q2"])), y
+
+
+def _motion_first(X, y):
+    """The motion rows first, then the sweep: the run starts with no sweep."""
+    order = np.argsort((X["phase"] == "sweep").to_numpy(), kind="stable")
+    return X.iloc[order].assign(t=X["t"].to_numpy()), y[order]
+
+
+@pytest.mark.parametrize(
+    "breaker, match",
+    [
+        pytest.param(_in_radians, r"The motors do not move of run 'run1': the largest "
+                     r"motor-input magnitude \|q - q_neutral\| is [\d.]+ deg; expected a sweep "
+                     r"whose rays reach at least min_amplitude_deg=5 deg", id="auto-in-radians"),
+        pytest.param(_motion_first, r"The start of run 'run1' is not a calibration sweep: the "
+                     r"excursion of samples \d+-\d+ \(t = [\d.]+-[\d.]+ s\), which",
+                     id="auto-motion-before-sweep"),
+    ],
+)
+def test_auto_sweep_end_on_a_start_that_is_not_a_sweep(bench, tmp_path, breaker, match):
+    """n_sweep="auto" in a folder of runs: the file whose start is not a sweep is named."""
+    paths, n_sweeps = _rig_folder(bench, tmp_path, breaker)
+    with pytest.raises(ValueError, match=r"run1\.csv: n_sweep='auto': " + match):
+        read_recordings(tmp_path, n_sweep="auto", catheter="A", setting="s", progress=False)
+    # the other run alone is read: its start is a sweep
+    X, _ = read_recording(paths[0], n_sweep="auto", catheter="A", setting="s")
+    assert (X["phase"] == "sweep").sum() == n_sweeps[0]
+
+
+def test_wrong_n_sweep_of_one_run_names_it_and_the_end_found(bench, tmp_path):
+    """A manifest of two runs, one with a too short n_sweep: the backbone names that run's."""
+    paths, n_sweeps = _rig_folder(bench, tmp_path)
+    short = n_sweeps[1] - 600
+    manifest = tmp_path / "manifest.csv"
+    pd.DataFrame({"path": [p.name for p in paths], "n_sweep": ["auto", str(short)]}).to_csv(
+        manifest, index=False)
+    X, y = read_recordings(manifest=manifest, catheter="A", setting="s", progress=False)
+    before = X.copy()
+    with pytest.raises(ValueError, match=rf"The run was read with n_sweep={short} \(its first "
+                       rf"{short} samples are the sweep\), but from the motor angles its sweep of "
+                       rf"8 rays ends after {n_sweeps[1]} samples \(t = [\d.]+ s; "
+                       rf"skcath\.sweep\.find_sweep_end\): read it with n_sweep={n_sweeps[1]}, "
+                       r"or with n_sweep='auto'") as info:
+        PDLBackbone().fit(X, y).predict(X)
+    assert "'run1'" in str(info.value) and "KFold" not in str(info.value)
+    pd.testing.assert_frame_equal(X, before)
