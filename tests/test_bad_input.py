@@ -1023,11 +1023,11 @@ def _tiny_gru(**params):
                           "random_state": 0, "n_threads": 1, **params})
 
 
-def _fit_is_refused(X, y, match):
+def _fit_is_refused(X, y, match, **params):
     """A tiny GRU's ``fit`` raises ValueError matching ``match`` and leaves ``X`` as it was."""
     before = X.copy()
     with pytest.raises(ValueError, match=match):
-        _tiny_gru().fit(X, y)
+        _tiny_gru(**params).fit(X, y)
     pd.testing.assert_frame_equal(X, before)
 
 
@@ -1341,14 +1341,26 @@ def _run_slowed(X, factor):
 
 
 def test_training_runs_at_two_rates_name_the_runs(nominal):
-    """A learner counts time in samples: training runs at two rates are refused by name."""
+    """A network at the runs' own rate: training runs at two rates are refused by name."""
     Xb, y = nominal
     X, run = _run_slowed(Xb, 2.0)  # that run at 5 Hz
     _fit_is_refused(X, y,
                     rf"GRUResidual learns time in samples, so its "
                     rf"training runs must share one sample rate; most rows are at 10 Hz, "
                     rf"but run\(s\) '{run}' at 5 Hz differ by more than 10 % "
-                    r"\(RATE_TOLERANCE\)\. Resample them to one rate first")
+                    r"\(RATE_TOLERANCE\)\. Resample them to one rate first", rate_hz=None)
+    # by default the network steps at 10 Hz and the 5 Hz run is resampled to it
+    assert _tiny_gru().fit(X, y).rate_hz_ == pytest.approx(10.0, rel=1e-6)
+
+
+def test_training_run_too_slow_for_the_network_names_rate_hz(nominal):
+    """A run at a tenth of the network's default 10 Hz: refused, naming ``rate_hz=None``."""
+    Xb, y = nominal
+    X, run = _run_slowed(Xb, 10.0)  # that run at 1 Hz
+    _fit_is_refused(X, y,
+                    rf"GRUResidual\(rate_hz=10\) steps its network at 10 Hz and brings the "
+                    rf"training runs to that rate: .*run\(s\) '{run}' at 1 Hz are recorded "
+                    r"slower than 0\.2 times.*Pass rate_hz=None")
 
 
 def test_run_too_slow_for_the_learner_is_refused(nominal, streaming):
