@@ -71,7 +71,6 @@ from skcath.frames import sweep_frame
 from skcath.metrics import mean_per_run_rmse
 from skcath.model_selection import SettingGroupKFold
 from skcath.residuals import GRUResidual
-from skcath.residuals._time_scales import REFERENCE_RATE_HZ, to_samples
 from skcath.sweep import find_rays
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -309,7 +308,7 @@ class KnownContext:
         scale = z.std(axis=0)
         z = (z - z.mean(axis=0)) / np.where(scale > 0, scale, 1.0)
         z = pd.DataFrame(np.c_[z, np.zeros((len(z), len(z.T) % 2))], index=self.known.index)
-        stride = to_samples(self.learner.sweep_stride_s, REFERENCE_RATE_HZ)  # 10 Hz runs
+        stride = round(self.learner.sweep_stride_s * 10.0)  # samples of the 10 Hz runs
         parts, targets, sources = [], [], []
         runs = X["run"].astype(str).to_numpy()
         sweep = (X["phase"] == "sweep").to_numpy()
