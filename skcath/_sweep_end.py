@@ -281,10 +281,17 @@ def _scan(q, t, q_neutral, params, run):
     sigma = _noise_level(q)
     moving = np.flatnonzero(rho > params["min_amplitude_deg"])
     if not moving.size:
+        largest = float(rho.max())
         raise ValueError(
-            f"The motors do not move{_of_run(run)}: the largest motor-input magnitude "
-            f"|q - q_neutral| is {rho.max():.3g} deg; expected a sweep whose rays reach at "
-            f"least min_amplitude_deg={params['min_amplitude_deg']:g} deg."
+            f"The motors do not move at the start{_of_run(run)}: the largest motor-input "
+            f"magnitude |q - q_neutral| is {largest:.3g} deg; expected a sweep whose rays reach "
+            f"at least min_amplitude_deg={params['min_amplitude_deg']:g} deg."
+            + (
+                " Motor angles must be in degrees; a largest magnitude of at most 2*pi "
+                "suggests radians (convert the motor angles with numpy.rad2deg)."
+                if 0.0 < largest <= 2.0 * np.pi
+                else ""
+            )
         )
     # the first ray: from there until rho is back under half min_amplitude_deg
     back = np.flatnonzero(rho[moving[0]:] <= 0.5 * params["min_amplitude_deg"])

@@ -1518,9 +1518,10 @@ def _motion_first(X, y):
 @pytest.mark.parametrize(
     "breaker, match",
     [
-        pytest.param(_in_radians, r"The motors do not move of run 'run1': the largest "
-                     r"motor-input magnitude \|q - q_neutral\| is [\d.]+ deg; expected a sweep "
-                     r"whose rays reach at least min_amplitude_deg=5 deg", id="auto-in-radians"),
+        pytest.param(_in_radians, r"The motors do not move at the start of run 'run1': the "
+                     r"largest motor-input magnitude \|q - q_neutral\| is [\d.]+ deg; expected a "
+                     r"sweep whose rays reach at least min_amplitude_deg=5 deg\. Motor angles "
+                     r"must be in degrees; .*numpy\.rad2deg", id="auto-in-radians"),
         pytest.param(_motion_first, r"The start of run 'run1' is not a calibration sweep: the "
                      r"excursion of samples \d+-\d+ \(t = [\d.]+-[\d.]+ s\), which",
                      id="auto-motion-before-sweep"),
