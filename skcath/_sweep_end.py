@@ -517,10 +517,20 @@ def n_sweep_hint(message, n_sweep, q, t, run) -> str:
     message : str
         ``message`` unchanged when ``n_sweep`` is None or equals the detected
         sweep length; otherwise, without the hint about cut runs, followed by
-        the ``n_sweep`` given and the end :func:`find_sweep_end` finds.
+        the ``n_sweep`` given and the end :func:`find_sweep_end` finds, or,
+        when ``q`` holds only the ``n_sweep`` rows read as the sweep, how to
+        find the end in the whole run.
     """
     if n_sweep is None:
         return message
+    if len(q) <= n_sweep:  # only the rows read as the sweep, e.g. a sweep given to start
+        return (
+            f"{message.replace(' ' + CUT_RUN_HINT, '')} The run was read with "
+            f"n_sweep={n_sweep} (its first {n_sweep} samples are the sweep), and only those "
+            "rows are here, so where its sweep really ends cannot be found from them: find "
+            "it in the whole run with skcath.sweep.find_sweep_end, or read the file with "
+            "n_sweep='auto'."
+        )
     try:
         found = find_sweep_end(q, t, run=run)
     except ValueError as exc:

@@ -180,6 +180,26 @@ def test_wrong_n_sweep_names_it_and_the_detected_end(bench, tmp_path, n_sweep):
     assert "KFold" not in message  # the hint about cut runs does not apply
 
 
+def test_wrong_n_sweep_of_a_sweep_alone_says_where_to_find_the_end(bench, tmp_path):
+    # Only the rows read as the sweep reach OnlineEstimator.start: they cannot
+    # tell where the sweep really ends, so no end is proposed from them.
+    from sklearn.pipeline import Pipeline
+
+    from skcath.online import OnlineEstimator
+
+    run, rows, true = _runs(bench.X, 1)[0]
+    y = bench.y[(bench.X["run"] == run).to_numpy()]
+    X, y = read_recording(_export(rows, y, tmp_path / "rig.csv"), n_sweep=3000,
+                          catheter="A", setting="s")
+    pipe = Pipeline([("backbone", PDLBackbone())]).fit(X, y)
+    with pytest.raises(ValueError) as info:
+        OnlineEstimator(pipe).start(X[X["phase"] == "sweep"])
+    message = str(info.value)
+    assert "read with n_sweep=3000" in message and "only those rows are here" in message
+    assert "n_sweep='auto'" in message and "ends after" not in message
+    assert "KFold" not in message
+
+
 def test_other_sweep_errors_keep_their_message(bench, tmp_path):
     run, rows, true = _runs(bench.X, 1)[0]
     y = bench.y[(bench.X["run"] == run).to_numpy()].copy()
