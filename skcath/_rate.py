@@ -39,7 +39,9 @@ from pandas.api import types as pdt
 from sklearn.utils._param_validation import Interval, validate_params
 
 from ._format import ID_COLUMNS, MOTION, PHASE, RUN, SWEEP, TIME
-from ._validation import _column_as_float, _group_medians, check_recordings, factorize_ids
+from ._medians import group_medians
+from ._validation import check_recordings
+from ._validation_columns import _column_as_float, factorize_ids
 
 __all__ = [
     "MIN_RATE_FRACTION",
@@ -92,7 +94,7 @@ def _medians_to_rates(codes, runs, order, steps):
     has = np.isfinite(steps)
     if not has.any():
         return np.full(len(runs), np.nan)
-    return 1.0 / _group_medians(steps[has], codes[order][has], len(runs))
+    return 1.0 / group_medians(steps[has], codes[order][has], len(runs))
 
 
 def _listed_rates(runs, rates, picked):

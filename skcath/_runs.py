@@ -30,14 +30,9 @@ import numpy as np
 import pandas as pd
 
 from ._format import PHASE, PHASES, RUN, TIME
-from ._validation import (
-    _check_columns_present,
-    _check_frame,
-    _check_time_order,
-    _column_as_float,
-    factorize_ids,
-    check_target,
-)
+from ._validation_columns import _check_columns_present, _check_frame, _column_as_float, factorize_ids
+from ._validation_runs import _check_time_order
+from ._validation_target import check_target
 
 __all__ = [
     "PaddedRuns",

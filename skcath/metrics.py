@@ -20,17 +20,15 @@ from sklearn.utils import Bunch, check_random_state
 
 from . import _format as fmt
 from ._runs import run_codes
-from ._validation import (
-    CUT_RUN_HINT,
+from ._validation_columns import (
     _check_columns_present,
     _check_finite,
     _check_frame,
     _column_as_float,
-    _phase_masks,
-    _target_frame_in_order,
-    check_target,
     motor_columns,
 )
+from ._validation_runs import CUT_RUN_HINT, _phase_masks
+from ._validation_target import _target_frame_in_order, check_target
 
 __all__ = [
     "per_run_rmse",

@@ -9,10 +9,10 @@ import pytest
 from skcath._format import REQUIRED_COLUMNS
 from sklearn.utils._param_validation import InvalidParameterError
 
+from skcath._medians import group_medians
 from skcath._validation import (
     MAX_GAP_FRACTION,
     REFERENCE_TOLERANCE_MM,
-    _group_medians,
     check_recordings,
     check_target,
     motor_columns,
@@ -443,7 +443,7 @@ def test_group_medians_match_pandas():
     values = rng.normal(size=200)
     codes = rng.integers(0, 6, 200)
     codes[codes == 4] = 5  # group 4 is empty
-    medians = _group_medians(values, codes, 7)
+    medians = group_medians(values, codes, 7)
     expected = pd.Series(values).groupby(codes).median().reindex(range(7)).to_numpy()
     np.testing.assert_allclose(medians, expected, equal_nan=True)
 
