@@ -50,6 +50,7 @@ __all__ = [
     "ModelRate",
     "model_ticks",
     "resample_runs",
+    "run_at_rate",
     "run_rates",
     "to_model_rate",
     "training_rate",
@@ -307,7 +308,29 @@ def to_model_rate(X: pd.DataFrame, rate_hz: float | None, owner: str) -> ModelRa
     """
     if rate_hz is None or len(X) < 2:
         return None
-    codes, runs, order, t, steps = _time_steps(X)
+    return _at_rate(X, *_time_steps(X), rate_hz, owner)
+
+
+def run_at_rate(X: pd.DataFrame, run, t: np.ndarray, rate_hz: float | None,
+                owner: str) -> ModelRate | None:
+    """:func:`to_model_rate` of the rows of one run, from their times.
+
+    For the checked rows of a single run in time order (a sweep given to a
+    streaming estimator): ``run`` is its id and ``t`` (n_rows,) the times of
+    its rows (s), float64, strictly increasing; the rows are not factorized
+    or sorted again. Returns what :func:`to_model_rate` returns for ``X``.
+    """
+    if rate_hz is None or len(X) < 2:
+        return None
+    steps = np.full(len(t), np.nan)
+    steps[1:] = np.diff(t)
+    codes = np.zeros(len(t), dtype=np.intp)
+    order = np.arange(len(t), dtype=np.intp)
+    return _at_rate(X, codes, np.asarray([run], dtype=object), order, t, steps, rate_hz, owner)
+
+
+def _at_rate(X, codes, runs, order, t, steps, rate_hz, owner):
+    """:func:`to_model_rate` from the run codes, ids, order, times and steps of :func:`_time_steps`."""
     sorted_codes = codes[order]
     has = np.isfinite(steps)
     _check_not_too_slow(_medians_to_rates(codes, runs, order, steps), runs, rate_hz, owner)

@@ -376,6 +376,16 @@ def sweep_frame(q, p, *, run=None, n_motors=2):
         raise ValueError(
             f"q and p must have the same number of rows{where}; got {q.shape[0]} and {p.shape[0]}."
         )
+    return _sweep_frame(q, p, run)
+
+
+def _sweep_frame(q, p, run=None):
+    """:func:`sweep_frame` of float64 arrays ``q`` (n, n_motors) and ``p`` (n, 3) of equal length.
+
+    For the checked sweep rows of a run (``run``: its id, for the
+    messages): not converted again, and never modified.
+    """
+    where = "" if run is None else f" of run {run!r}"
     keep = np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
     q, p = q[keep], p[keep]
     design = _quadratic_design(q)

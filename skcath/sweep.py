@@ -223,14 +223,18 @@ def _circular_groups(angles: np.ndarray, tol: float) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # find_rays
 # ---------------------------------------------------------------------------
-def _check_motor_angles(q, run, n_rays, min_samples) -> np.ndarray:
-    """Validate the sweep motor angles and return them as a float64 array."""
-    arr = to_array(
+def _as_motor_angles(q, run) -> np.ndarray:
+    """The sweep motor angles as a float64 array, or a ValueError that says what was expected."""
+    return to_array(
         q,
         f"The sweep motor angles{_of_run(run)} must be a numeric array of shape (n, 2) "
         "with columns q1, q2 (degrees)",
         dtype=np.float64,
     )
+
+
+def _check_motor_angles(arr, run, n_rays, min_samples) -> np.ndarray:
+    """Validate the sweep motor angles, a float64 array, and return them."""
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(
             f"The sweep motor angles{_of_run(run)} must have shape (n, 2) with "
@@ -625,6 +629,21 @@ def find_rays(
     >>> rays.n_rays, round(rays.amplitude, 1)
     (8, 60.0)
     """
+    return _find_rays(
+        _as_motor_angles(q, run), n_rays=n_rays, run=run, neutral_fraction=neutral_fraction,
+        min_amplitude_deg=min_amplitude_deg, min_samples=min_samples,
+        ray_spacing_deg=ray_spacing_deg,
+    )
+
+
+def _find_rays(q, *, n_rays, run=None, neutral_fraction=0.03, min_amplitude_deg=5.0,
+               min_samples=None, ray_spacing_deg=None) -> SweepRays:
+    """:func:`find_rays` of motor angles that are a float64 ndarray already, parameters valid.
+
+    For the checked sweep rows of a run (a backbone's calibration): the
+    angles are not converted again; their shape, values and number are
+    checked as by :func:`find_rays`.
+    """
     spacing = _ray_spacing(ray_spacing_deg, n_rays)
     if min_samples is None:
         min_samples = 10 * n_rays
@@ -718,6 +737,16 @@ def check_sweep_references(ref, rays: SweepRays, *, run=None, min_fraction: floa
         "(ref_x, ref_y, ref_z in mm)",
         dtype=np.float64,
     )
+    _check_sweep_references(ref, rays, run=run, min_fraction=min_fraction)
+
+
+def _check_sweep_references(ref, rays, *, run=None, min_fraction=0.5) -> None:
+    """:func:`check_sweep_references` of references that are a float64 ndarray already.
+
+    For the checked sweep rows of a run: ``rays`` is the :class:`SweepRays`
+    of :func:`find_rays` and ``min_fraction`` valid; the shape and values
+    of ``ref`` are checked as by :func:`check_sweep_references`.
+    """
     n = rays.labels.size
     if ref.shape != (n, 3):
         raise ValueError(

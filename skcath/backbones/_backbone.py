@@ -25,7 +25,7 @@ from .._base import RecordingsMixin
 from .._runs import run_codes, run_positions
 from .._validation import check_recordings, motor_columns
 from .._sweep_end import N_SWEEP_ATTR, n_sweep_hint
-from ..sweep import check_sweep_references, find_rays
+from ..sweep import _check_sweep_references, _find_rays
 from ._hysteresis import identify_play_width, play_operator
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
@@ -84,7 +84,11 @@ def check_two_motors(X, owner):
     bending planes); recordings of another number of motors get an error
     that names it and points to :class:`PolynomialBackbone`.
     """
-    motors, _ = motor_columns(X)
+    _check_two(motor_columns(X)[0], owner)
+
+
+def _check_two(motors, owner):
+    """:func:`check_two_motors` of the motor columns ``motors`` of checked recordings."""
     if len(motors) != 2:
         raise ValueError(
             f"{owner} models a catheter with two bending motors (q1, q2), but the "
@@ -106,12 +110,12 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None):
     """
     q_sweep, ref_sweep = q[sweep], ref[sweep]
     try:
-        rays = find_rays(
+        rays = _find_rays(
             q_sweep, n_rays=backbone.n_rays, run=run,
             # absent from backbones pickled before the parameter existed
             ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
         )
-        check_sweep_references(ref_sweep, rays, run=run)
+        _check_sweep_references(ref_sweep, rays, run=run)
     except ValueError as exc:
         if given is None:
             raise
@@ -238,6 +242,18 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             records.append({fmt.RUN: run, **par.to_dict(), "play_width_deg": width, **_summary(info)})
         table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
         return Bunch(table=table, params=params, play_widths=widths, nominal=nominal)
+
+    def _calibrate_sweep(self, run, motors, q, ref, given=None):
+        """:meth:`calibrate` of one run given by its sweep rows alone, from their checked arrays.
+
+        ``motors`` are the motor columns, ``q`` (n, 2) the motor angles (deg)
+        and ``ref`` (n, 3) the reference tip (mm) of the rows, float64;
+        ``given`` as for :func:`_calibrate_run`. Returns the nominal tip of
+        every row (mm), the parameters and the half-width of the play (deg).
+        """
+        _check_two(motors, type(self).__name__)
+        tip, params, _, width = _calibrate_run(self, run, q, ref, np.ones(len(q), dtype=bool), given)
+        return tip, params, width
 
     def predict(self, X):
         """Nominal tip position of every row, each run calibrated on its own sweep.

@@ -359,11 +359,37 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
         fitted = []
         for run, pos in zip(runs, positions):
-            rows = pos[sweep[pos] & _finite_rows(ref[pos])]
-            self._check_enough_rows(len(rows), q.shape[1], f"the sweep rows of run {run!r}")
-            polynomial = _fit_polynomial(q[rows], ref[rows], self.degree)
-            fitted.append(PolynomialParams.from_polynomial(polynomial))
+            rows = pos[sweep[pos]]
+            fitted.append(self._fit_run(run, q[rows], ref[rows]))
         return runs, positions, fitted
+
+    def _fit_run(self, run, q, ref):
+        """The polynomial of run ``run`` fitted on its sweep rows: angles ``q`` (deg), reference ``ref`` (mm)."""
+        rows = _finite_rows(ref)
+        self._check_enough_rows(int(rows.sum()), q.shape[1], f"the sweep rows of run {run!r}")
+        return PolynomialParams.from_polynomial(_fit_polynomial(q[rows], ref[rows], self.degree))
+
+    def _check_motors(self, motors):
+        """Raise unless the motor columns ``motors`` are as many as those of ``fit``."""
+        if self.polynomial_ is not None and len(motors) != self.n_motors_:
+            raise ValueError(
+                f"This PolynomialBackbone was fitted on recordings of {self.n_motors_} "
+                f"motor(s), but X has {len(motors)} ({', '.join(motors)})."
+            )
+
+    def _calibrate_sweep(self, run, motors, q, ref, given=None):
+        """:meth:`calibrate` of one run given by its sweep rows alone, from their checked arrays.
+
+        As :meth:`PDLBackbone._calibrate_sweep` (``given`` is not read):
+        returns the nominal tip of every row (mm), the parameters and the
+        half-width of the play, 0.
+        """
+        self._check_motors(motors)
+        if self.polynomial_ is not None:
+            params = PolynomialParams.from_polynomial(self.polynomial_)
+        else:
+            params = self._fit_run(run, q, ref)
+        return polynomial_tip(q, params), params, 0.0
 
     def calibrate(self, X):
         """The polynomial of every run of ``X``; the estimator is left unchanged.
@@ -396,11 +422,7 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
     def _calibrate_checked(self, X):
         """:meth:`calibrate` on recordings already checked."""
         motors, _ = motor_columns(X)
-        if self.polynomial_ is not None and len(motors) != self.n_motors_:
-            raise ValueError(
-                f"This PolynomialBackbone was fitted on recordings of {self.n_motors_} "
-                f"motor(s), but X has {len(motors)} ({', '.join(motors)})."
-            )
+        self._check_motors(motors)
         q = X[list(motors)].to_numpy(dtype=np.float64)
         ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64)
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()

@@ -24,9 +24,7 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions, va
 from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
-from .._rate import RATE_TOLERANCE, TICK_TOLERANCE, to_model_rate
-from .._runs import run_codes
-from .._validation import check_recordings, motor_columns
+from .._rate import RATE_TOLERANCE, TICK_TOLERANCE, run_at_rate
 from ..backbones import (
     BACKBONE_COLUMNS,
     PCCParams,
@@ -35,34 +33,16 @@ from ..backbones import (
     play_operator,
 )
 from ..exceptions import PipelineChangedWarning
-from ..frames import sweep_frame
-from ..sweep import find_rays
+from ..frames import _sweep_frame
+from ..residuals._context import sweep_context
+from ..sweep import _find_rays
 from ._fast import BackboneStep, NumpyStep
 from ._pipeline import STEP_BACKBONES, check_online_pipeline
 from ._sample import as_real, real_sample
+from ._sweep import calibrate, check_sweep
 from ._weights import fitted_fingerprint, step_weights
 
 __all__ = ["OnlineEstimator", "calibrate_sweep"]
-
-
-#: Columns of a sweep recorded without the tracker (:meth:`OnlineEstimator.resweep`).
-def _check_sweep(sweep, columns="auto"):
-    """Checked sweep rows of exactly one run, with the columns ``columns``."""
-    X, _ = check_recordings(sweep, columns=columns)
-    _, runs = run_codes(X)
-    if len(runs) != 1:
-        raise ValueError(
-            f"sweep must hold the sweep rows of exactly one run; got {len(runs)} runs "
-            f"({', '.join(map(repr, list(runs)[:5]))})."
-        )
-    n_motion = int((X[fmt.PHASE] != fmt.SWEEP).sum())
-    if n_motion:
-        raise ValueError(
-            f"sweep must hold only rows with {fmt.PHASE!r} == {fmt.SWEEP!r}; got "
-            f"{n_motion} {fmt.MOTION!r} row(s) of run {runs[0]!r}. Pass "
-            f"X[X[{fmt.PHASE!r}] == {fmt.SWEEP!r}]."
-        )
-    return X, runs[0]
 
 
 @validate_params(
@@ -91,9 +71,8 @@ def calibrate_sweep(backbone, sweep):
     skcath.backbones.PDLBackbone.calibrate : the calibrations of every run of recordings.
     """
     check_is_fitted(backbone)
-    X, run = _check_sweep(sweep)
-    calibration = backbone.calibrate(X)
-    return calibration.params[run], calibration.nominal
+    params, nominal, _ = calibrate(backbone, check_sweep(sweep))
+    return params, nominal
 
 
 def _step_class(engine):
@@ -151,27 +130,27 @@ def _motor_range(q, q_neutral, q_margin):
     return amplitude, (math.inf if q_margin is None else (1.0 + q_margin) * amplitude)
 
 
-def _sweep_at_rate(residual, X, nominal, run, channels):
+def _sweep_at_rate(residual, X, sweep, nominal):
     """The sweep brought to the residual's rate, or None if it is at that rate already.
 
-    ``X`` holds the checked sweep rows of one run, ``nominal`` the backbone's
-    tip on them (mm), ``channels`` its motor and torque columns. Returns the
-    rotation ``R_SB`` of the resampled sweep (``frame="sweep"``, else None),
-    its frame (for the context), its last sample (the values of
-    ``channels``) and its number of ticks, as ``predict`` sees the run.
+    ``X`` holds the rows of the checked sweep ``sweep`` (a
+    :class:`~skcath.online._sweep.CheckedSweep`), ``nominal`` the backbone's
+    tip on them (mm). Returns the rotation ``R_SB`` of the resampled sweep
+    (``frame="sweep"``, else None), its frame (for the context), its last
+    sample (the values of the sweep's channels) and its number of ticks, as
+    ``predict`` sees the run.
     """
     rate = getattr(residual, "rate_hz_", None)
-    at_rate = to_model_rate(X.assign(**dict(zip(BACKBONE_COLUMNS, nominal.T))), rate,
-                            type(residual).__name__)
+    at_rate = run_at_rate(X.assign(**dict(zip(BACKBONE_COLUMNS, nominal.T))), sweep.run, sweep.t,
+                          rate, type(residual).__name__)
     if at_rate is None:
         return None
     Xr = at_rate.X
-    motors = _motors(channels)
-    q = Xr[motors].to_numpy(dtype=np.float64)
+    q = Xr[list(sweep.motors)].to_numpy(dtype=np.float64)
     rotation = None
     if residual.frame == "sweep":
-        rotation = sweep_frame(q, Xr[list(BACKBONE_COLUMNS)].to_numpy(), run=run, n_motors=len(motors))
-    last = Xr[list(channels)].to_numpy(dtype=np.float64)[-1]
+        rotation = _sweep_frame(q, Xr[list(BACKBONE_COLUMNS)].to_numpy(dtype=np.float64), sweep.run)
+    last = Xr[list(sweep.channels)].to_numpy(dtype=np.float64)[-1]
     return rotation, Xr, tuple(float(v) for v in last), len(Xr)
 
 
@@ -414,26 +393,22 @@ class OnlineEstimator(BaseEstimator):
         step_class = _step_class(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
         self._fingerprint = fitted_fingerprint(backbone, residual)
-        X, run = _check_sweep(sweep)
-        motors, torques = motor_columns(X)
+        sweep = check_sweep(sweep)  # the sweep's rows are checked here, once
+        X, motors, torques, q, tau = sweep.X, sweep.motors, sweep.torques, sweep.q, sweep.tau
         if residual is not None:  # its checks of the motors and torques, before any work
-            residual._check_torques(X)
-            residual._check_motor_count(X)
-        calibration = backbone.calibrate(X)
-        q = X[list(motors)].to_numpy(dtype=np.float64)
-        tau = X[list(torques)].to_numpy(dtype=np.float64)
-        self.run_ = run
-        self.channels_ = (*motors, *torques)
-        self.backbone_params_ = calibration.params[run]
+            residual._check_torques(motors, torques)
+            residual._check_motor_count(motors)
+        self.backbone_params_, nominal, self.play_width_ = calibrate(backbone, sweep)
+        self.run_ = sweep.run
+        self.channels_ = sweep.channels
         self._calibration_sweep = X[[*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *motors, *torques]]
-        self.play_width_ = float(calibration.play_widths[run])
         played = play_operator(q, self.play_width_) if self.play_width_ > 0 else q
         self._play_start = tuple(float(v) for v in played[-1])
         self.rotation_ = None
         self.context_ = None
         self._start_clock(X, residual, q, tau)
         if residual is not None:
-            self._encode_sweep(residual, X, q, calibration.nominal, run)
+            self._encode_sweep(residual, sweep, nominal)
         self.q_neutral_ = _neutral_angles(self.backbone_params_)
         self.q_amplitude_, self.q_limit_ = _motor_range(q, self.q_neutral_, self.q_margin)
         self._qn = tuple(float(v) for v in self.q_neutral_)
@@ -457,24 +432,24 @@ class OnlineEstimator(BaseEstimator):
         self._tick0 = float(t[0])
         self._n_sweep_ticks = 0
 
-    def _encode_sweep(self, residual, X, q, nominal, run):
-        """The sweep frame ``rotation_`` and context ``context_`` of a sweep, at the model's rate.
+    def _encode_sweep(self, residual, sweep, nominal):
+        """The sweep frame ``rotation_`` and context ``context_`` of a checked sweep, at the model's rate.
 
         ``nominal`` is the backbone's tip on the sweep's rows (mm). A sweep at
         another rate than the residual's is brought to it first, as
         ``predict`` brings the run (``resampled_``).
         """
-        resampled = _sweep_at_rate(residual, X, nominal, run, self.channels_)
+        resampled = _sweep_at_rate(residual, sweep.X, sweep, nominal)
         if resampled is None:
             if residual.frame == "sweep":
-                self.rotation_ = sweep_frame(q, nominal, run=run, n_motors=q.shape[1])
+                self.rotation_ = _sweep_frame(sweep.q, nominal, sweep.run)
             if residual.use_context:
-                self.context_ = residual.encode_context(X, dtype=self.dtype)[0]
+                self.context_ = sweep_context(residual, sweep.X, len(sweep.motors), self.dtype)
             return
         self.rotation_, Xr, self._last_sweep, self._n_sweep_ticks = resampled
         self.resampled_ = True
         if residual.use_context:
-            self.context_ = residual.encode_context(Xr, dtype=self.dtype)[0]
+            self.context_ = sweep_context(residual, Xr, len(sweep.motors), self.dtype)
 
     def _pack(self, step_class):
         """The step's packed arrays from what :meth:`start` took from the pipeline.
@@ -599,7 +574,7 @@ class OnlineEstimator(BaseEstimator):
                 + ("" if kept is not None else ", and was started or pickled without its sweep")
                 + ". Call start(sweep) with a tracked sweep."
             )
-        X, _ = _check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels))
+        X = check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels)).X
         predicted = recalibration.recalibrate(kept, _without_reference(X), params=self.backbone_params_)
         return self.start(predicted)
 
@@ -622,18 +597,18 @@ class OnlineEstimator(BaseEstimator):
                 f"{len(motors)} motor(s) ({', '.join(motors)}). Call start(sweep) with a tracked "
                 "sweep instead."
             )
-        X, run = _check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels))
-        found = motor_columns(X)
-        if (*found[0], *found[1]) != channels:
+        sweep = check_sweep(sweep, columns=(*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *channels))
+        run = sweep.run
+        if sweep.channels != channels:
             raise ValueError(
-                f"the re-sweep has the channels {', '.join((*found[0], *found[1]))}, but the "
+                f"the re-sweep has the channels {', '.join(sweep.channels)}, but the "
                 f"sweep given to start() had {', '.join(channels)}; resweep needs the same "
                 "motor and torque columns."
             )
-        X = _without_reference(X)
+        X = _without_reference(sweep.X)
         q = X[motors].to_numpy(dtype=np.float64)
         tau = X[[c for c in channels if c not in motors]].to_numpy(dtype=np.float64)
-        rays = find_rays(
+        rays = _find_rays(
             q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
             run=run,
         )
@@ -643,13 +618,13 @@ class OnlineEstimator(BaseEstimator):
         rotation = context = at_rate = None
         if residual is not None:
             # a sweep at another rate than the model's is brought to it, as in start
-            at_rate = _sweep_at_rate(residual, X, nominal, run, channels)
+            at_rate = _sweep_at_rate(residual, X, sweep, nominal)
             if at_rate is not None:
                 rotation, Xr, _, _ = at_rate
             elif residual.frame == "sweep":
-                rotation = sweep_frame(q, nominal, run=run)
+                rotation = _sweep_frame(q, nominal, run)
             if residual.use_context:
-                context = residual.encode_context(X if at_rate is None else Xr, dtype=self.dtype)[0]
+                context = sweep_context(residual, X if at_rate is None else Xr, len(motors), self.dtype)
         detector = None if self.detector is None else copy.deepcopy(self.detector).start(X)
 
         self.run_, self.rotation_, self.context_ = run, rotation, context

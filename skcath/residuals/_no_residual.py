@@ -5,7 +5,7 @@ from sklearn.utils.validation import check_is_fitted
 
 from .._base import RecordingsMixin
 from .._validation import check_recordings
-from ._estimators import check_backbone_columns, nominal_tip
+from ._backbone_columns import check_backbone_columns, nominal_tip
 
 __all__ = ["NoResidual"]
 
