@@ -49,7 +49,7 @@ from skcath.residuals import (
     step_feature_names,
     sweep_feature_names,
 )
-from skcath.residuals import _estimators
+from skcath.residuals import _estimators, _net
 from skcath.residuals._features import cut_windows, feature_frame, pool_sweep
 from skcath.residuals._modules import on_cpu
 
@@ -800,10 +800,10 @@ def test_fit_validates_parameters_and_input_once(Est, small, monkeypatch):
 
         return wrapper
 
-    monkeypatch.setattr(_estimators, "validate_parameter_constraints",
-                        count("params", _estimators.validate_parameter_constraints))
-    monkeypatch.setattr(_estimators, "check_recordings",
-                        count("X", _estimators.check_recordings))
+    monkeypatch.setattr(_net, "validate_parameter_constraints",
+                        count("params", _net.validate_parameter_constraints))
+    monkeypatch.setattr(_net, "check_recordings",
+                        count("X", _net.check_recordings))
     est = tiny_residual(Est, max_epochs=1)
     est.fit(Xb, y)
     assert calls == {"params": 1, "X": 1}
@@ -1203,7 +1203,7 @@ def test_unavailable_device_is_refused_up_front(Est, small, fitted, monkeypatch)
     _, Xb, y = small
     device = _unavailable_device()
     prepared = []
-    monkeypatch.setattr(_estimators.Standardizer, "fit",
+    monkeypatch.setattr(_net.Standardizer, "fit",
                         lambda *a, **k: prepared.append(1))  # never reached
     with pytest.raises(ValueError, match=rf"has device='{device}', but torch cannot compute "
                        r"there on this machine; the devices available are \['cpu'"):
