@@ -35,7 +35,7 @@ OPTIONAL = {
 }
 
 #: Modules that must not import any other skcath module.
-LEAVES = ("skcath._format", "skcath._version", "skcath.exceptions")
+LEAVES = ("skcath._format", "skcath._version", "skcath.exceptions", "skcath._medians")
 
 
 def _modules():
