@@ -9,6 +9,7 @@ from ._benchmark import (
 )
 from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_parameters, shaft_settings
 from ._hysteresis import MECHANISMS
+from ._rig import SimulatedCatheter
 from ._simulator import simulate_run
 
 __all__ = [
@@ -16,6 +17,7 @@ __all__ = [
     "SIMULATOR_VERSION",
     "Catheter",
     "ShaftSetting",
+    "SimulatedCatheter",
     "benchmark_catheter",
     "clear_data_home",
     "get_data_home",
