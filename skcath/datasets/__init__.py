@@ -11,6 +11,15 @@ from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_paramete
 from ._hysteresis import MECHANISMS
 from ._rig import SimulatedCatheter
 from ._simulator import simulate_run
+from ._tasks import (
+    Task,
+    circle_task,
+    figure_eight_task,
+    reach_task,
+    run_task,
+    standard_tasks,
+    task_scores,
+)
 
 __all__ = [
     "MECHANISMS",
@@ -18,12 +27,19 @@ __all__ = [
     "Catheter",
     "ShaftSetting",
     "SimulatedCatheter",
+    "Task",
     "benchmark_catheter",
+    "circle_task",
     "clear_data_home",
+    "figure_eight_task",
     "get_data_home",
     "make_benchmark",
+    "reach_task",
+    "run_task",
     "sample_catheter",
     "setting_parameters",
     "shaft_settings",
     "simulate_run",
+    "standard_tasks",
+    "task_scores",
 ]
