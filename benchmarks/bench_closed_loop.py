@@ -8,7 +8,9 @@ shaft setting (``--setting``) runs the standard tasks of its sweep
 circle and a figure-eight at ``--speed`` mm/s) with every controller of the
 registry, and the true tip is scored (``skcath.datasets.task_scores``): RMS
 and 95th percentile of the error (mm), and for the reach task the median
-settling time to 2 mm (s) and the share of targets held.
+settling time to 2 mm (s) and the share of targets held; "clipped" counts
+the commands the rig clipped to its motor range and "warnings" the
+warnings raised during the task (a controller's unreachable targets).
 
 Controllers (``CONTROLLERS``: name -> ``(backbone, tracker, factory)``, the
 factory called with the fitted pipeline of ``backbone``):
@@ -23,8 +25,9 @@ factory called with the fitted pipeline of ``backbone``):
   PDL estimate, and the feedback on the tracker (the rig's tracker on: the
   bound of what an estimate can give). Without it they are skipped.
 
-The script also times the rig itself: ``SimulatedCatheter.step`` with the
-tracker off and on.
+The script also times the rig itself: ``SimulatedCatheter.reset`` and
+``step`` with the tracker off and on (wall time, and the process's CPU time,
+which a loaded machine inflates less).
 
 Run ``python benchmarks/bench_closed_loop.py`` (``--quick``: shorter tasks
 and a one-unit training benchmark).
@@ -32,6 +35,7 @@ and a one-unit training benchmark).
 
 import argparse
 import time
+import warnings
 
 import numpy as np
 from sklearn.pipeline import Pipeline
@@ -117,10 +121,11 @@ def time_rig(n_steps, catheter, setting):
         start = time.perf_counter()
         rig.reset()
         reset_s = time.perf_counter() - start
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         for command in path:
             rig.step(command)
-        out[tracker] = (reset_s, (time.perf_counter() - start) / n_steps)
+        out[tracker] = (reset_s, (time.perf_counter() - start) / n_steps,
+                        (time.process_time() - cpu) / n_steps)
     return out
 
 
@@ -137,9 +142,10 @@ def main():
     args = parser.parse_args()
 
     if args.timing_steps:
-        for tracker, (reset_s, step_s) in time_rig(args.timing_steps, args.catheter, args.setting).items():
+        for tracker, (reset_s, step_s, cpu_s) in time_rig(args.timing_steps, args.catheter, args.setting).items():
             print(f"rig, tracker {'on' if tracker else 'off'}: reset {reset_s:.2f} s, "
-                  f"{step_s * 1e6:.0f} us/step ({args.timing_steps} steps)")
+                  f"{step_s * 1e6:.0f} us/step wall, {cpu_s * 1e6:.0f} us/step CPU "
+                  f"({args.timing_steps} steps)")
     if CONTROL_MISSING:
         print("skipped: skcath.control not available")
     names = args.controllers or list(CONTROLLERS)
@@ -148,8 +154,8 @@ def main():
         parser.error(f"unknown controller(s) {unknown}; available: {sorted(CONTROLLERS)}")
 
     print()
-    print("| task | mechanism | controller | RMS mm | p95 mm | settling s | held | clipped |")
-    print("|---|---|---|---:|---:|---:|---:|---:|")
+    print("| task | mechanism | controller | RMS mm | p95 mm | settling s | held | clipped | warnings |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
     for mechanism in args.mechanisms:
         backbones = sorted({CONTROLLERS[n][0] for n in names} - {None})
         pipelines = fit_pipelines(mechanism, backbones, args.quick) if backbones else {}
@@ -157,12 +163,14 @@ def main():
             backbone, tracker, factory = CONTROLLERS[name]
             rig = SimulatedCatheter(args.catheter, args.setting, mechanism=mechanism, tracker=tracker)
             for task in tasks_of(rig.reset(), args.quick, args.speed, args.seed):
-                result = run_task(rig, factory(pipelines.get(backbone)), task)
+                with warnings.catch_warnings(record=True) as warned:
+                    warnings.simplefilter("always")
+                    result = run_task(rig, factory(pipelines.get(backbone)), task)
                 s = task_scores(result)
                 settling = "" if np.isnan(s["settling_s"]) else f"{s['settling_s']:.1f}"
                 held = "" if np.isnan(s["settled"]) else f"{s['settled']:.2f}"
                 print(f"| {task.name} | {mechanism} | {name} | {s['rms_mm']:.2f} | {s['p95_mm']:.2f} "
-                      f"| {settling} | {held} | {result.n_clipped} |", flush=True)
+                      f"| {settling} | {held} | {result.n_clipped} | {len(warned)} |", flush=True)
 
 
 if __name__ == "__main__":
