@@ -268,8 +268,13 @@ class SimulatedCatheter(BaseEstimator):
     def _spec(self, cat, setting):
         """The benchmark's run ``repeat`` of the unit in the setting."""
         specs = benchmark_specs([cat], int(self.repeat), int(self.random_state))
-        spec = next(s for s in specs if s.setting.name == setting.name and s.repeat == self.repeat)
-        return dataclasses.replace(spec, setting=setting)
+        found = [s for s in specs if s.setting.name == setting.name and s.repeat == self.repeat]
+        if not found:
+            raise ValueError(
+                f"setting {setting.name!r} is not one of the benchmark's settings "
+                f"{sorted({s.setting.name for s in specs})}; the rig runs the benchmark's runs."
+            )
+        return dataclasses.replace(found[0], setting=setting)
 
     def reset(self):
         """Start the run: perform its calibration sweep.
