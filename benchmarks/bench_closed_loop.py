@@ -34,6 +34,7 @@ and a one-unit training benchmark).
 """
 
 import argparse
+import importlib
 import time
 import warnings
 
@@ -71,17 +72,19 @@ class SweepLookup:
 #: name -> (backbone of the pipeline it needs or None, whether the rig's tracker is on, factory(pipeline))
 CONTROLLERS = {"sweep lookup": (None, False, lambda pipeline: SweepLookup())}
 
-try:
-    from skcath.control import FeedbackController, FeedforwardController
+try:  # an optional package: imported by name, so that the script runs without it
+    control = importlib.import_module("skcath.control")
 except ImportError:
     CONTROL_MISSING = True
 else:
     CONTROL_MISSING = False
     CONTROLLERS.update({
-        "feedforward PCC": ("pcc", False, FeedforwardController),
-        "feedforward PDL": ("pdl", False, FeedforwardController),
-        "feedback PDL (estimate)": ("pdl", False, FeedbackController),
-        "feedback PDL (tracker)": ("pdl", True, lambda p: FeedbackController(p, close_on="tracker")),
+        "feedforward PCC": ("pcc", False, control.FeedforwardController),
+        "feedforward PDL": ("pdl", False, control.FeedforwardController),
+        "feedback PDL (estimate)": ("pdl", False, control.FeedbackController),
+        "feedback PDL (tracker)": (
+            "pdl", True, lambda p: control.FeedbackController(p, close_on="tracker")
+        ),
     })
 
 
