@@ -12,13 +12,14 @@ rows). The Polynomial backbone has no play, so its ``"play"`` row is left out.
 Usage (from the repository root)::
 
     OMP_NUM_THREADS=1 python benchmarks/bench_hysteresis.py
-    OMP_NUM_THREADS=1 python benchmarks/bench_hysteresis.py --n-runs 3 --mechanism dahl_creep
+    OMP_NUM_THREADS=1 python benchmarks/bench_hysteresis.py --mechanism dahl_creep --max-runs 4
 """
 
 import argparse
 import time
 
 import pandas as pd
+from sklearn.utils import Bunch
 
 from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone
 from skcath.datasets import MECHANISMS, make_benchmark
@@ -46,6 +47,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mechanism", choices=[*MECHANISMS, "all"], default="all")
     parser.add_argument("--n-runs", type=int, default=1, help="runs per catheter (default 1)")
+    parser.add_argument("--max-runs", type=int, default=None,
+                        help="score the first runs only (default: all 17 of the catheter)")
     parser.add_argument("--random-state", type=int, default=0)
     args = parser.parse_args(argv)
     mechanisms = MECHANISMS if args.mechanism == "all" else (args.mechanism,)
@@ -53,10 +56,15 @@ def main(argv=None):
     for mechanism in mechanisms:
         data = make_benchmark(mechanism=mechanism, n_catheters=1, n_runs=args.n_runs,
                               random_state=args.random_state)
+        if args.max_runs:
+            keep = data.X["run"].isin(data.X["run"].unique()[: args.max_runs]).to_numpy()
+            data = Bunch(X=data.X[keep], y=data.y[keep])
+        first = data.X["run"].to_numpy() == data.X["run"].iloc[0]
+        warm = Bunch(X=data.X[first], y=data.y[first])
         for name in BACKBONES:
             options = (None, "pi") if name == "Polynomial" else (None, "play", "pi")
             for hysteresis in options:
-                measure(data, name, hysteresis)  # warm-up: compiles the kernels
+                measure(warm, name, hysteresis)  # warm-up: compiles the kernels
                 rows.append({"mechanism": mechanism, "backbone": name,
                              "hysteresis": str(hysteresis),
                              **measure(data, name, hysteresis)})

@@ -54,8 +54,14 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         :func:`skcath.sweep.find_rays`.
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per {}.
-    hysteresis : {{None, "play"}}, default=None
-        None: the backbone reads the motor angles as they are. ``"play"``:
+    hysteresis : {{None, "play", "pi"}}, default=None
+        None: the backbone reads the motor angles as they are. ``"pi"``: a
+        Prandtl-Ishlinskii hysteresis with dead band and creep
+        (:class:`PrandtlIshlinskii`), identified on each run's sweep from
+        the play's half-width on (``calibrate`` returns the models in
+        ``hysteresis`` and their parameters in the table's ``pi_*``
+        columns; ``max_play_deg`` is its largest threshold; see
+        ``docs/backbones.rst``). ``"play"``:
         the motor angles of each run pass through a symmetric play operator
         (backlash, :func:`play_operator`) before the backbone, its half-width
         identified on the run's own sweep (the width whose calibration on
@@ -65,7 +71,7 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         for its cost (about 20 calibrations per run).
     max_play_deg : float, default=20.0
         Largest half-width of the play searched (deg), in (0, 180]; used
-        with ``hysteresis="play"`` only.
+        with ``hysteresis="play"`` and ``"pi"`` only.
     n_jobs : int, default=None
         Runs calibrated in parallel (joblib); None means 1.
 
@@ -220,7 +226,10 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             evaluated on its played angles,
             ``pdl_tip(play_operator(q, play_widths[run]), params[run])``
             with ``q`` the motor angles of all its rows (sweep, then
-            motion).
+            motion). With ``hysteresis="pi"`` also ``hysteresis``: a dict
+            run id -> :class:`PrandtlIshlinskii`, whose parameters are the
+            table's ``pi_*`` columns, and the nominal tips are
+            ``pdl_tip(hysteresis[run].forward(q, t), params[run])``.
         """
         check_is_fitted(self)
         X, _ = check_recordings(X)
