@@ -262,3 +262,14 @@ def test_online_estimator_refuses_the_pi():
     pipe.fit(X, X[["ref_x", "ref_y", "ref_z"]].to_numpy())
     with pytest.raises(ValueError, match="hysteresis='pi'"):
         OnlineEstimator(pipe).start(X)
+
+
+def test_polynomial_sweep_calibration_with_pi(pcc_params):
+    true = PrandtlIshlinskii(GRID, [0.5, 0.0, 0.5, 0.0], dead_band=2.0, asymmetry=[0.0, 0.0])
+    q = _sweep(40.0)
+    X = _recording(q, pcc_tip(true.forward(q, _times(len(q))), pcc_params))
+    plain = PolynomialBackbone(degree=4).fit(X).calibrate(X)
+    pi = PolynomialBackbone(degree=4, hysteresis="pi").fit(X).calibrate(X)
+    assert pi.table["rmse_mm"].iloc[0] < 0.5 * plain.table["rmse_mm"].iloc[0]
+    assert pi.hysteresis["R1"].dead_band > 0.5
+    assert "hysteresis" not in plain and "pi_w0" not in plain.table
