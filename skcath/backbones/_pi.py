@@ -475,12 +475,6 @@ class SweepProblem:
     calibrate: object  # z (N, m) -> (params, info with "rmse_mm")
     evaluate: object  # (z, params) -> tips (N, 3), mm
 
-    def sweep_rmse(self, model, params):
-        """RMSE (mm) of the backbone's tips at the model's effective angles on the finite rows."""
-        finite = np.isfinite(self.target).all(axis=1)
-        tips = self.evaluate(self.effective(model)[finite], params)
-        return float(np.sqrt(np.mean(np.sum((tips - self.target[finite]) ** 2, axis=1))))
-
     def effective(self, model):
         return np.concatenate([model.forward(q, t) for q, t in self.segments])
 
@@ -543,8 +537,8 @@ def identify_pi(problem, *, max_play_deg, n_motors, run=None):
     on at most :data:`MAX_FIT_ROWS` evenly strided rows, the backbone's
     parameters fixed; weights >= 0 normalised to sum 1), and the backbone
     recalibrated on the new effective angles. Of no hysteresis, the play
-    and the PI of every round, the one whose backbone's tips have the lowest
-    RMSE on the rows is kept if it beats no hysteresis by the Bayesian
+    and the PI of every round, the one of the lowest calibration RMSE
+    (``rmse_mm``, as the play's search) is kept if it beats no hysteresis by the Bayesian
     information criterion (``n log(SSE_0 / SSE) > p log n``, ``n`` the
     residuals, ``p = K + 2`` the hysteresis parameters), else no
     hysteresis: noise is never fitted.
@@ -584,7 +578,7 @@ def identify_pi(problem, *, max_play_deg, n_motors, run=None):
                                 max_play_deg)
         params, info = problem.calibrate(problem.effective(model))
         fits.append((model, params, info))
-    scores = [problem.sweep_rmse(model, params) for model, params, _ in fits]
+    scores = [info["rmse_mm"] for _, _, info in fits]
     best = fits[int(np.argmin(scores))]
     n_obs = 3 * n_finite
     rmse0, rmse = scores[0], min(scores)
