@@ -139,7 +139,8 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
             backbone._evaluate,
         )
         model, params, info = identify_pi(
-            problem, max_play_deg=backbone.max_play_deg, n_motors=q.shape[1], run=run
+            problem, max_play_deg=backbone.max_play_deg, n_motors=q.shape[1],
+            where=f"run {run!r}",
         )
         return backbone._evaluate(model.forward(q, t), params), params, info, model
     fits = {}

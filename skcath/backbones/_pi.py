@@ -479,14 +479,14 @@ class SweepProblem:
         return np.concatenate([model.forward(q, t) for q, t in self.segments])
 
 
-def _fallback(run, reason):
+def _fallback(where, reason):
     warnings.warn(
-        f"hysteresis='pi': {reason} for run {run!r}; the run is calibrated without "
+        f"hysteresis='pi': {reason} for {where}, which is calibrated without "
         "hysteresis.", UserWarning, stacklevel=4,
     )
 
 
-def _n_shown(problem, grid, run):
+def _n_shown(problem, grid, where):
     """How many thresholds of ``grid`` the runs' motion can show, or 0 (with a warning) if too flat.
 
     A play of threshold ``g`` moves only after a reversal of more than ``2 g``.
@@ -494,7 +494,7 @@ def _n_shown(problem, grid, run):
     amplitude = 0.5 * max(float(np.ptp(q, axis=0).max()) for q, _ in problem.segments)
     n = int(np.sum(2.0 * grid <= amplitude))
     if n < 2:
-        _fallback(run, f"the motor angles move {amplitude:.3g} deg about their centre, too "
+        _fallback(where, f"the motor angles move {amplitude:.3g} deg about their centre, too "
                        f"little to identify the plays (the smallest nonzero threshold, "
                        f"{grid[1]:.3g} deg, needs a reversal of twice that; lower max_play_deg)")
         return 0
@@ -522,7 +522,7 @@ def _fit_hysteresis(problem, params, x0, grid, n_motors, max_play_deg):
     return _from_vector(result.x, grid, n_motors)
 
 
-def identify_pi(problem, *, max_play_deg, n_motors, run=None):
+def identify_pi(problem, *, max_play_deg, n_motors, where="the rows"):
     """Identify the PI hysteresis and the backbone's calibration together.
 
     ``problem`` (:class:`SweepProblem`) holds the motor angles and times of
@@ -543,6 +543,8 @@ def identify_pi(problem, *, max_play_deg, n_motors, run=None):
     residuals, ``p = K + 2`` the hysteresis parameters), else no
     hysteresis: noise is never fitted.
 
+    ``where`` names the rows in the warning of a fallback (e.g. ``"run 'R1'"``).
+
     Returns
     -------
     model : PrandtlIshlinskii
@@ -555,11 +557,11 @@ def identify_pi(problem, *, max_play_deg, n_motors, run=None):
     n_free = (grid.size - 1) + 1 + 2
     identity = PrandtlIshlinskii.identity(grid, n_motors=n_motors)
     fits = [(identity, *problem.calibrate(problem.effective(identity)))]
-    n_shown = _n_shown(problem, grid, run)
+    n_shown = _n_shown(problem, grid, where)
     if not n_shown:
         return fits[0]
     if n_finite < ROWS_PER_PARAMETER * n_free:
-        _fallback(run, f"{n_finite} rows with a finite reference are too few to identify "
+        _fallback(where, f"{n_finite} rows with a finite reference are too few to identify "
                        f"{n_free} parameters (at least {ROWS_PER_PARAMETER * n_free})")
         return fits[0]
     played = {}

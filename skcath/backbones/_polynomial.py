@@ -376,7 +376,7 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
 
         problem = SweepProblem(segments, target, calibrate, lambda z, p: p.predict(z))
         model, polynomial, _ = identify_pi(problem, max_play_deg=self.max_play_deg,
-                                           n_motors=segments[0][0].shape[1], run=where)
+                                           n_motors=segments[0][0].shape[1], where=where)
         return model, polynomial
 
     def _check_enough_rows(self, n_rows, n_motors, where):
