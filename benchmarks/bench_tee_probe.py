@@ -61,6 +61,16 @@ thread)::
 
     .venv/bin/python benchmarks/bench_tee_probe.py
     .venv/bin/python benchmarks/bench_tee_probe.py --quick   # 2 epochs, 1 seed, no search
+    .venv/bin/python benchmarks/bench_tee_probe.py --pi --no-search --seeds 0  # with PI rows
+
+With ``--pi`` two methods are added: ``polynomial+PI``, the polynomial after a
+Prandtl-Ishlinskii hysteresis with dead band and creep identified with it on
+acquisition 1 (``PolynomialBackbone(degree, calibration="fit",
+hysteresis="pi", max_play_deg=...)``, the largest threshold a third of half
+the motor's range, as 20 deg is of the 60 deg rays of the simulated sweep),
+and ``polynomial+PI+GRU``, the GRU after it with the settings of
+``polynomial+GRU``. ``t`` is the nominal 10 Hz, so the creep's time
+constant is in nominal seconds.
 
 Results are printed as tables and written as CSV to ``--out`` (default
 ``<temp dir>/skcath_tee_probe``).
@@ -110,6 +120,12 @@ COLUMNS = {
 }
 QUAT_ORDER = "xyzw"
 METHODS = ("polynomial", "polynomial+MLP", "polynomial+GRU")
+#: Methods added by ``--pi``: the polynomial after a Prandtl-Ishlinskii hysteresis
+#: (``hysteresis="pi"``) identified with it on acquisition 1, alone and with the GRU.
+PI_METHODS = ("polynomial+PI", "polynomial+PI+GRU")
+#: Largest PI threshold as a share of half the motor's range in acquisition 1: the
+#: default 20 deg of ``max_play_deg`` over the 60 deg rays of the simulated sweep.
+PI_MAX_PLAY_SHARE = 20.0 / 60.0
 
 
 def file_name(motor, acquisition):
@@ -266,19 +282,25 @@ DEFAULT_CONFIG = {"max_epochs": 200, "use_torque": True}
 BLOCKS = {"n_splits": 2, "n_blocks": 20}
 
 
-def make_method(method, degree, config, seed):
+def make_method(method, degree, config, seed, max_play=None):
     """The estimator of ``method``: the polynomial backbone, or a Pipeline with a residual.
 
     Only public estimators of skcath: ``PolynomialBackbone`` alone, or in a
-    ``sklearn.pipeline.Pipeline`` before ``MLPResidual`` or ``GRUResidual``.
+    ``sklearn.pipeline.Pipeline`` before ``MLPResidual`` or ``GRUResidual``;
+    the methods of :data:`PI_METHODS` give the backbone ``hysteresis="pi"``
+    with ``max_play_deg=max_play`` (counts).
     """
-    backbone = PolynomialBackbone(degree, calibration="fit")
-    if method == "polynomial":
+    if method in PI_METHODS:
+        backbone = PolynomialBackbone(degree, calibration="fit", hysteresis="pi",
+                                      max_play_deg=max_play)
+    else:
+        backbone = PolynomialBackbone(degree, calibration="fit")
+    if method in ("polynomial", "polynomial+PI"):
         return backbone
-    cls = {"polynomial+MLP": MLPResidual, "polynomial+GRU": GRUResidual}[method]
+    cls = MLPResidual if method == "polynomial+MLP" else GRUResidual
     params = {**BASE_LEARNER, **config}
     if method == "polynomial+MLP":
-        params["burn_in"] = 0  # no hidden state to warm up
+        params["burn_in_s"] = 0.0  # no hidden state to warm up
     residual = cls(random_state=seed, **params)
     return Pipeline([("backbone", backbone), ("residual", residual)])
 
@@ -373,6 +395,7 @@ def run_benchmark(
     degrees=range(1, 10),
     n_sweep=10,
     motors=MOTORS,
+    pi=False,
     log=print,
 ):
     """Train on acquisition 1 of each motor and test on its acquisitions 2 and 3.
@@ -394,6 +417,10 @@ def run_benchmark(
         Leading samples of every acquisition marked ``"sweep"``.
     motors : sequence of int
         Motors to run.
+    pi : bool, default=False
+        Also run :data:`PI_METHODS` (the GRU with the settings chosen for
+        ``polynomial+GRU``), with the largest threshold
+        :data:`PI_MAX_PLAY_SHARE` of half the motor's range in acquisition 1.
     log : callable
         Progress messages.
 
@@ -445,11 +472,15 @@ def run_benchmark(
             log(f"motor{motor}: {method} chose {best} in {time.perf_counter() - t0:.0f} s\n"
                 + table.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
         fitted = {}
-        for method in METHODS:
-            method_seeds = [-1] if method == "polynomial" else list(seeds)
+        q1 = X1[MOTOR_COLUMNS[0]].to_numpy(dtype=np.float64)
+        max_play = PI_MAX_PLAY_SHARE * 0.5 * float(np.ptp(q1))
+        configs["polynomial+PI+GRU"] = configs.get("polynomial+GRU")
+        for method in METHODS + (PI_METHODS if pi else ()):
+            method_seeds = [-1] if method in ("polynomial", "polynomial+PI") else list(seeds)
             for seed in method_seeds:
                 t0 = time.perf_counter()
-                model = make_method(method, degree, configs.get(method), seed).fit(X1, y1)
+                model = make_method(method, degree, configs.get(method), seed,
+                                    max_play).fit(X1, y1)
                 fit_s = time.perf_counter() - t0
                 fitted[method, seed] = model
                 for a in ACQUISITIONS[1:]:
@@ -524,6 +555,9 @@ def main(argv=None):
                         help=f"skip the search inside acq1, use {DEFAULT_CONFIG}")
     parser.add_argument("--quick", action="store_true",
                         help="2 epochs, seed 0, no search (a smoke run)")
+    parser.add_argument("--pi", action="store_true",
+                        help="also the polynomial after a Prandtl-Ishlinskii hysteresis, "
+                             "alone and with the GRU")
     args = parser.parse_args(argv)
     try:
         folder = resolve_data_folder(args.data)
@@ -541,7 +575,7 @@ def main(argv=None):
 
     t0, cpu0 = time.perf_counter(), time.process_time()
     results, selection, checks = run_benchmark(folder, seeds=seeds, grid=grid, config=config,
-                                               n_sweep=args.n_sweep)
+                                               n_sweep=args.n_sweep, pi=args.pi)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     summary = summarize(results)
     print()

@@ -73,7 +73,9 @@ def test_tags_and_parameters():
     tags = get_tags(PolynomialBackbone())
     assert tags.estimator_type == "regressor" and tags.transformer_tags is not None
     assert not tags.target_tags.required and tags.target_tags.multi_output
-    assert PolynomialBackbone().get_params() == {"degree": 3, "calibration": "sweep"}
+    assert PolynomialBackbone().get_params() == {
+        "degree": 3, "calibration": "sweep", "hysteresis": None, "max_play_deg": 20.0
+    }
 
 
 def test_sweep_calibration_fits_each_run_on_its_own_sweep(recordings):

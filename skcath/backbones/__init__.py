@@ -2,6 +2,7 @@
 
 from ._backbone import BACKBONE_COLUMNS, PCCBackbone, PDLBackbone
 from ._hysteresis import identify_play_width, play_kernel, play_operator
+from ._pi import PrandtlIshlinskii, pi_inverse_step, pi_step
 from ._lm import LMResult, levenberg_marquardt
 from ._pcc import PCCParams, calibrate_pcc, pcc_kernel, pcc_tip
 from ._pdl import PDLParams, calibrate_pdl, pdl_kernel, pdl_tip
@@ -16,6 +17,7 @@ __all__ = [
     "PDLParams",
     "PolynomialBackbone",
     "PolynomialParams",
+    "PrandtlIshlinskii",
     "calibrate_pcc",
     "calibrate_pdl",
     "identify_play_width",
@@ -24,6 +26,8 @@ __all__ = [
     "pcc_tip",
     "pdl_kernel",
     "pdl_tip",
+    "pi_inverse_step",
+    "pi_step",
     "play_kernel",
     "play_operator",
     "polynomial_kernel",

@@ -27,6 +27,7 @@ from .._validation import check_recordings, motor_columns
 from .._sweep_end import N_SWEEP_ATTR, n_sweep_hint
 from ..sweep import _check_sweep_references, _find_rays
 from ._hysteresis import identify_play_width, play_operator
+from ._pi import PrandtlIshlinskii, SweepProblem, identify_pi
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
 
@@ -53,8 +54,14 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         :func:`skcath.sweep.find_rays`.
     max_iter : int, default=100
         Largest number of Gauss-Newton steps per {}.
-    hysteresis : {{None, "play"}}, default=None
-        None: the backbone reads the motor angles as they are. ``"play"``:
+    hysteresis : {{None, "play", "pi"}}, default=None
+        None: the backbone reads the motor angles as they are. ``"pi"``: a
+        Prandtl-Ishlinskii hysteresis with dead band and creep
+        (:class:`PrandtlIshlinskii`), identified on each run's sweep from
+        the play's half-width on (``calibrate`` returns the models in
+        ``hysteresis`` and their parameters in the table's ``pi_*``
+        columns; ``max_play_deg`` is its largest threshold; see
+        ``docs/backbones.rst``). ``"play"``:
         the motor angles of each run pass through a symmetric play operator
         (backlash, :func:`play_operator`) before the backbone, its half-width
         identified on the run's own sweep (the width whose calibration on
@@ -64,7 +71,7 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         for its cost (about 20 calibrations per run).
     max_play_deg : float, default=20.0
         Largest half-width of the play searched (deg), in (0, 180]; used
-        with ``hysteresis="play"`` only.
+        with ``hysteresis="play"`` and ``"pi"`` only.
     n_jobs : int, default=None
         Runs calibrated in parallel (joblib); None means 1.
 
@@ -97,7 +104,7 @@ def _check_two(motors, owner):
         )
 
 
-def _calibrate_run(backbone, run, q, ref, sweep, given=None):
+def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
     """Calibrate one run on its sweep rows and evaluate it on all its rows.
 
     ``given`` is ``(n_sweep, t)`` when the run's sweep rows are the first
@@ -106,7 +113,9 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None):
     the motor angles.
 
     Returns the nominal tips, the parameters, the solver's summary and the
-    half-width of the play (deg; 0 without hysteresis).
+    half-width of the play (deg; 0 without hysteresis), or with
+    ``hysteresis="pi"`` the :class:`PrandtlIshlinskii` model (``t``, the
+    times of the run's rows in s, is then needed).
     """
     q_sweep, ref_sweep = q[sweep], ref[sweep]
     try:
@@ -126,6 +135,18 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None):
     if getattr(backbone, "hysteresis", None) is None:
         params, info = backbone._calibrate(q_sweep, ref_sweep, rays, q_sweep)
         return backbone._evaluate(q, params), params, info, 0.0
+    if backbone.hysteresis == "pi":
+        # the sweep rows come first, so the run's effective angles continue the sweep's
+        problem = SweepProblem(
+            [(q_sweep, t[sweep])], ref_sweep,
+            lambda z: backbone._calibrate(z, ref_sweep, rays, q_sweep),
+            backbone._evaluate,
+        )
+        model, params, info = identify_pi(
+            problem, max_play_deg=backbone.max_play_deg, n_motors=q.shape[1],
+            where=f"run {run!r}",
+        )
+        return backbone._evaluate(model.forward(q, t), params), params, info, model
     fits = {}
 
     def sweep_rmse(width):
@@ -146,7 +167,7 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         "n_rays": [Interval(Integral, 3, None, closed="left")],
         "ray_spacing_deg": [None, Interval(Real, 0, 360, closed="right")],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
-        "hysteresis": [None, StrOptions({"play"})],
+        "hysteresis": [None, StrOptions({"play", "pi"})],
         "max_play_deg": [Interval(Real, 0, 180, closed="right")],
         "n_jobs": [None, Integral],
     }
@@ -210,7 +231,10 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
             evaluated on its played angles,
             ``pdl_tip(play_operator(q, play_widths[run]), params[run])``
             with ``q`` the motor angles of all its rows (sweep, then
-            motion).
+            motion). With ``hysteresis="pi"`` also ``hysteresis``: a dict
+            run id -> :class:`PrandtlIshlinskii`, whose parameters are the
+            table's ``pi_*`` columns, and the nominal tips are
+            ``pdl_tip(hysteresis[run].forward(q, t), params[run])``.
         """
         check_is_fitted(self)
         X, _ = check_recordings(X)
@@ -229,19 +253,26 @@ class _BaseBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, BaseEstim
         results = Parallel(n_jobs=self.n_jobs)(
             delayed(_calibrate_run)(
                 self, run, q[pos], ref[pos], sweep[pos],
-                (given[run], t[pos]) if run in given else None,
+                (given[run], t[pos]) if run in given else None, t[pos],
             )
             for run, pos in zip(runs, positions)
         )
         nominal = np.empty((len(X), 3))
-        records, params, widths = [], {}, {}
+        records, params, widths, models = [], {}, {}, {}
         for run, pos, (tip, par, info, width) in zip(runs, positions, results):
             nominal[pos] = tip
             params[run] = par
+            hysteresis = {}
+            if isinstance(width, PrandtlIshlinskii):
+                models[run], width, hysteresis = width, 0.0, width.to_dict()
             widths[run] = width
-            records.append({fmt.RUN: run, **par.to_dict(), "play_width_deg": width, **_summary(info)})
+            records.append({fmt.RUN: run, **par.to_dict(), "play_width_deg": width,
+                            **hysteresis, **_summary(info)})
         table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
-        return Bunch(table=table, params=params, play_widths=widths, nominal=nominal)
+        out = Bunch(table=table, params=params, play_widths=widths, nominal=nominal)
+        if self.hysteresis == "pi":
+            out.hysteresis = models
+        return out
 
     def _calibrate_sweep(self, run, motors, q, ref, given=None):
         """:meth:`calibrate` of one run given by its sweep rows alone, from their checked arrays.

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb
-from numbers import Integral
+from numbers import Integral, Real
 
 import numpy as np
 import pandas as pd
@@ -45,6 +45,7 @@ from .._kernel import compiled, kernel
 from .._runs import run_codes, run_positions
 from .._validation import check_recordings, motor_columns
 from ._backbone import BACKBONE_COLUMNS
+from ._pi import SweepProblem, identify_pi
 
 __all__ = ["PolynomialBackbone", "PolynomialParams", "polynomial_kernel", "polynomial_tip"]
 
@@ -250,6 +251,17 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         training recordings whose target ``y`` is finite (sweep and motion
         rows; NaN rows, tracker dropouts, are skipped) and applied to every
         run; ``fit`` then needs ``y``.
+    hysteresis : {None, "pi"}, default=None
+        None: the polynomial reads the motor angles as they are. ``"pi"``:
+        the motor angles of each run pass through a Prandtl-Ishlinskii
+        hysteresis with dead band and creep
+        (:class:`~skcath.backbones.PrandtlIshlinskii`) identified with the
+        polynomial on the rows it is fitted on (each run's sweep, or with
+        ``calibration="fit"`` the training rows, one model for all runs);
+        see ``docs/backbones.rst``.
+    max_play_deg : float, default=20.0
+        Largest threshold of the hysteresis (in the unit of the motor
+        columns); used with ``hysteresis="pi"`` only.
 
     Attributes
     ----------
@@ -266,6 +278,9 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         (``StandardScaler``, ``PolynomialFeatures``, ``LinearRegression``)
         that maps the motor angles to the tip (mm). None with
         ``calibration="sweep"``, where every run has its own.
+    hysteresis_ : PrandtlIshlinskii or None
+        With ``calibration="fit"`` and ``hysteresis="pi"``: the hysteresis
+        identified on the training rows; None otherwise.
 
     See Also
     --------
@@ -296,11 +311,15 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
     _parameter_constraints: dict = {
         "degree": [Interval(Integral, 1, None, closed="left")],
         "calibration": [StrOptions({"sweep", "fit"})],
+        "hysteresis": [None, StrOptions({"pi"})],
+        "max_play_deg": [Interval(Real, 0, None, closed="neither")],
     }
 
-    def __init__(self, degree=3, *, calibration="sweep"):
+    def __init__(self, degree=3, *, calibration="sweep", hysteresis=None, max_play_deg=20.0):
         self.degree = degree
         self.calibration = calibration
+        self.hysteresis = hysteresis
+        self.max_play_deg = max_play_deg
 
     @_fit_context(prefer_skip_nested_validation=True)
     def fit(self, X, y=None):
@@ -331,12 +350,34 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         self._record_columns(X)
         self.n_motors_ = len(motors)
         self.polynomial_ = None
+        self.hysteresis_ = None
         if not by_sweep:
             q = X[list(motors)].to_numpy(dtype=np.float64)
             keep = _finite_rows(y)
             self._check_enough_rows(int(keep.sum()), len(motors), "the training recordings")
-            self.polynomial_ = _fit_polynomial(q[keep], y[keep], self.degree)
+            if self.hysteresis == "pi":
+                positions = run_positions(X)
+                t = X[fmt.TIME].to_numpy(dtype=np.float64)
+                self.hysteresis_, self.polynomial_ = self._identify(
+                    [(q[pos], t[pos]) for pos in positions],
+                    np.concatenate([y[pos] for pos in positions]), "the training recordings")
+            else:
+                self.polynomial_ = _fit_polynomial(q[keep], y[keep], self.degree)
         return self
+
+    def _identify(self, segments, target, where):
+        """The hysteresis and the polynomial fitted on the effective angles of ``segments``."""
+        keep = _finite_rows(target)
+
+        def calibrate(z):
+            polynomial = _fit_polynomial(z[keep], target[keep], self.degree)
+            error = np.sum((polynomial.predict(z[keep]) - target[keep]) ** 2, axis=1)
+            return polynomial, {"rmse_mm": float(np.sqrt(error.mean()))}
+
+        problem = SweepProblem(segments, target, calibrate, lambda z, p: p.predict(z))
+        model, polynomial, _ = identify_pi(problem, max_play_deg=self.max_play_deg,
+                                           n_motors=segments[0][0].shape[1], where=where)
+        return model, polynomial
 
     def _check_enough_rows(self, n_rows, n_motors, where):
         """Raise unless ``n_rows`` rows with a finite target can determine the polynomial."""
@@ -354,14 +395,25 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         positions = run_positions(X)
         if self.polynomial_ is not None:
             params = PolynomialParams.from_polynomial(self.polynomial_)
-            return runs, positions, [params] * len(runs)
+            model = getattr(self, "hysteresis_", None)
+            return runs, positions, [params] * len(runs), [model] * len(runs)
         ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64)
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
-        fitted = []
+        t = X[fmt.TIME].to_numpy(dtype=np.float64)
+        fitted, models = [], []
         for run, pos in zip(runs, positions):
-            rows = pos[sweep[pos]]
-            fitted.append(self._fit_run(run, q[rows], ref[rows]))
-        return runs, positions, fitted
+            on = pos[sweep[pos]]  # the sweep rows come first
+            model = None
+            if getattr(self, "hysteresis", None) == "pi":
+                rows = on[_finite_rows(ref[on])]
+                self._check_enough_rows(len(rows), q.shape[1], f"the sweep rows of run {run!r}")
+                model, polynomial = self._identify([(q[on], t[on])], ref[on], f"run {run!r}")
+                params = PolynomialParams.from_polynomial(polynomial)
+            else:
+                params = self._fit_run(run, q[on], ref[on])
+            fitted.append(params)
+            models.append(model)
+        return runs, positions, fitted, models
 
     def _fit_run(self, run, q, ref):
         """The polynomial of run ``run`` fitted on its sweep rows: angles ``q`` (deg), reference ``ref`` (mm)."""
@@ -426,18 +478,26 @@ class PolynomialBackbone(RecordingsMixin, TransformerMixin, RegressorMixin, Base
         q = X[list(motors)].to_numpy(dtype=np.float64)
         ref = X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64)
         sweep = (X[fmt.PHASE] == fmt.SWEEP).to_numpy()
+        t = X[fmt.TIME].to_numpy(dtype=np.float64)
         nominal = np.empty((len(X), 3))
-        records, params = [], {}
-        for run, pos, par in zip(*self._run_params(X, q)):
-            nominal[pos] = polynomial_tip(q[pos], par)
+        records, params, models = [], {}, {}
+        for run, pos, par, model in zip(*self._run_params(X, q)):
+            z = q[pos] if model is None else model.forward(q[pos], t[pos])
+            nominal[pos] = polynomial_tip(z, par)
             params[run] = par
             rows = pos[sweep[pos] & _finite_rows(ref[pos])]
             error = np.sum((nominal[rows] - ref[rows]) ** 2, axis=1)
             rmse = float(np.sqrt(error.mean())) if rows.size else np.nan
-            records.append({fmt.RUN: run, **par.to_dict(), "rmse_mm": rmse, "play_width_deg": 0.0})
+            hysteresis = {} if model is None else model.to_dict()
+            models[run] = model
+            records.append({fmt.RUN: run, **par.to_dict(), "rmse_mm": rmse, "play_width_deg": 0.0,
+                            **hysteresis})
         table = pd.DataFrame.from_records(records).set_index(fmt.RUN)
-        return Bunch(table=table, params=params, play_widths=dict.fromkeys(params, 0.0),
-                     nominal=nominal)
+        out = Bunch(table=table, params=params, play_widths=dict.fromkeys(params, 0.0),
+                    nominal=nominal)
+        if getattr(self, "hysteresis", None) == "pi":
+            out.hysteresis = models
+        return out
 
     def _nominal(self, X):
         """The checked recordings and the nominal tip of every row (mm)."""

@@ -392,6 +392,12 @@ class OnlineEstimator(BaseEstimator):
         """:meth:`start` once the parameters are validated."""
         step_class = _step_class(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
+        if getattr(backbone, "hysteresis", None) == "pi":
+            raise ValueError(
+                f"The streaming step does not run the hysteresis of {type(backbone).__name__} "
+                "(hysteresis='pi'); use hysteresis='play' or None for OnlineEstimator, or "
+                "predict the recordings with the pipeline."
+            )
         self._fingerprint = fitted_fingerprint(backbone, residual)
         sweep = check_sweep(sweep)  # the sweep's rows are checked here, once
         X, motors, torques, q, tau = sweep.X, sweep.motors, sweep.torques, sweep.q, sweep.tau
