@@ -101,7 +101,7 @@ def test_feedforward_recovers_the_motor_path_of_the_model_tips(runs, pipes, Back
     _, _, sweep, motion = runs
     pipe = pipes(Backbone, hysteresis)
     targets = _model_tips(pipe, sweep, motion)
-    controller = FeedforwardController(pipe).start(sweep)
+    controller = FeedforwardController(pipe, latency=0).start(sweep)
     plant = ModelPlant(pipe, sweep)
     with warnings.catch_warnings():
         warnings.simplefilter("error", UnreachableTargetWarning)
@@ -136,7 +136,7 @@ def test_play_inverse_beats_the_backbone_inverse_on_a_played_plant(runs, pipes):
     targets = _model_tips(plant_pipe, sweep, motion)
     errors = {}
     for hysteresis in (None, "play"):
-        controller = FeedforwardController(pipes(PCCBackbone, hysteresis)).start(sweep)
+        controller = FeedforwardController(pipes(PCCBackbone, hysteresis), latency=0).start(sweep)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UnreachableTargetWarning)
             tips, _ = _drive(controller, ModelPlant(plant_pipe, sweep), targets)
@@ -154,11 +154,12 @@ def test_feedback_reaches_a_held_target(runs, pipes, close_on, feedforward):
     offset = (1.5, -1.0, 0.0) if close_on == "tracker" else (0.0, 0.0, 0.0)
     # a plant whose tip is off the model's by an offset mostly across the tip's surface
     plant = ModelPlant(pipe, sweep, offset=offset)
-    controller = FeedbackController(pipe, close_on=close_on, feedforward=feedforward, gain=0.5).start(sweep)
+    controller = FeedbackController(pipe, close_on=close_on, feedforward=feedforward, gain=0.5,
+                                    latency=0).start(sweep)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnreachableTargetWarning)
         tips, _ = _drive(controller, plant, [target] * 60)
-    feedforward_only = FeedforwardController(pipe).start(sweep)
+    feedforward_only = FeedforwardController(pipe, latency=0).start(sweep)
     ff_tips, _ = _drive(feedforward_only, ModelPlant(pipe, sweep, offset=offset), [target] * 60)
     final = np.linalg.norm(tips[-5:] - target, axis=1).max()
     if close_on == "tracker":
@@ -175,7 +176,7 @@ def test_rate_limit_is_never_exceeded(runs, pipes, Controller):
     far = _model_tips(pipe, sweep, motion)[[20, 140]]
     targets = np.repeat(far, 15, axis=0)[np.r_[0:15, 15:30, 0:15]]
     rate = 20.0
-    controller = Controller(pipe, rate_limit=rate).start(sweep)
+    controller = Controller(pipe, rate_limit=rate, latency=0).start(sweep)
     previous = controller.command_.copy()
     _, commands = _drive(controller, ModelPlant(pipe, sweep), targets)
     steps = np.abs(np.diff(np.vstack([previous, commands]), axis=0))
@@ -189,7 +190,7 @@ def test_unreachable_target_is_clipped_with_a_warning(runs, pipes, Controller):
     _, _, sweep, _ = runs
     pipe = pipes(PCCBackbone)
     limits = [[-20.0, 20.0], [-30.0, 10.0]]
-    controller = Controller(pipe, motor_limits=limits).start(sweep)
+    controller = Controller(pipe, motor_limits=limits, latency=0).start(sweep)
     plant = ModelPlant(pipe, sweep)
     target = np.array([80.0, 80.0, 0.0])
     given = target.copy()
@@ -255,3 +256,36 @@ def test_bad_inputs_raise_naming_them(runs, pipes):
         FeedbackController(pipe, close_on="camera").start(sweep)
     with pytest.raises(ValueError, match="exactly one run|phase"):
         FeedforwardController(pipe).start(pd.concat([sweep, motion]))
+
+
+class DelayedPlant(ModelPlant):
+    """A :class:`ModelPlant` whose record of a sample comes one command later, as the simulated rig's."""
+
+    def __init__(self, pipe, sweep):
+        super().__init__(pipe, sweep)
+        self.pending = (self.obs, None)
+
+    def step(self, command):
+        obs, tip = self.pending
+        super().step(command)
+        self.pending = (self.obs, self.tip.copy())
+        self.obs, self.tip = obs, tip
+        return obs
+
+
+def test_latency_counts_the_commands_not_yet_observed(runs, pipes):
+    """On a plant that shows a sample one command late, latency=1 puts the commanded tip on the target."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    targets = _model_tips(pipe, sweep, motion)
+    controller = FeedforwardController(pipe, latency=1).start(sweep)
+    plant = DelayedPlant(pipe, sweep)
+    commands = []
+    for target in targets:
+        commands.append(controller.step(target, plant.obs))
+        plant.step(commands[-1])
+    # the tips of the commanded samples, each after the one commanded before it
+    est = OnlineEstimator(pipe).start(sweep)
+    torques = sweep[["tau1", "tau2"]].to_numpy()[-1]
+    tips = np.array([est.step(*c, *torques).copy() for c in commands])
+    assert np.quantile(np.linalg.norm(tips - targets, axis=1), 0.95) < 0.05

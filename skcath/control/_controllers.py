@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from collections import deque
 from numbers import Integral, Real
 
 import numpy as np
@@ -62,6 +63,7 @@ class _Controller(BaseEstimator):
         "reach_tol_mm": [Interval(Real, 0, None, closed="left")],
         "max_iter": [Interval(Integral, 1, None, closed="left")],
         "damping": [Interval(Real, 0, None, closed="left")],
+        "latency": [Interval(Integral, 0, None, closed="left")],
         "engine": [StrOptions({"auto", "numba", "numpy"})],
     }
 
@@ -97,6 +99,7 @@ class _Controller(BaseEstimator):
         self.aimed_ = self.estimate_ = None
         self.n_unreachable_ = 0
         self._limited = False
+        self._issued = deque([self.command_.copy()] * self.latency, maxlen=max(self.latency, 1))
         self._reset_feedback()
         return self
 
@@ -111,21 +114,26 @@ class _Controller(BaseEstimator):
             )
 
     def _observe(self, obs, need_tracker=False):
-        """Step the model with the measured sample; the estimate (mm) and the tracker's tip or None."""
+        """Step the model with the measured sample; the estimate (mm) and the tracker's tip or None.
+
+        Then the model is advanced, on a copy of its state, by the commands
+        still pending (``latency``), with the sample's torques.
+        """
         sample, t, tip = read_obs(obs, self.estimator_.channels_, need_tracker)
         est = self.estimator_
         self.estimate_ = est.step(*sample, t=t).copy()
         n = len(est.q_neutral_)
         self._torques = sample[n:]
-        self._measured = np.array(sample[:n])
-        self.model_.freeze()
+        pending = list(self._issued)[-self.latency:] if self.latency else []
+        self._effective = np.array(pending[-1] if pending else sample[:n], dtype=float)
+        self.model_.begin([(*q.tolist(), *self._torques) for q in pending])
+        if est.play_width_ > 0.0:  # the played angles after the pending commands
+            self._effective = np.array(est.play_state_)
         return self.estimate_, tip
 
     def _effective_state(self):
-        """Effective angles of the last step (deg): the played angles, or the measured ones without a play."""
-        if self.estimator_.play_width_ > 0.0:
-            return np.array(self.estimator_.play_state_)
-        return self._measured
+        """Effective angles (deg) the next command moves from: played, or commanded without a play."""
+        return self._effective
 
     def _solve(self, target, z0):
         return self.model_.solve(target, z0, self._torques, max_iter=self.max_iter, tol_deg=1e-3,
@@ -168,6 +176,7 @@ class _Controller(BaseEstimator):
             limited = limited or slowed
         self._limited = limited
         self.command_ = q_limited
+        self._issued.append(q_limited)
         return q_limited.copy()
 
 
@@ -193,6 +202,14 @@ _COMMON_PARAMETERS = """
         Most Gauss-Newton steps of the model's inverse per sample.
     damping : float, default=0.05
         Damping of the least-squares steps (mm/deg).
+    latency : int, default=1
+        Commands issued whose samples the observations do not show yet: the
+        model is advanced by these (with the last torques) before it is
+        inverted, and feedback compares the estimate with the tip aimed at
+        ``latency + 1`` steps before. 1 for
+        :class:`~skcath.datasets.SimulatedCatheter`, whose record of a sample
+        is complete only once the next command is known; 0 where the
+        observation is the sample that the previous command produced.
     engine : {"auto", "numba", "numpy"}, default="auto"
         Engine of the model's step (:class:`~skcath.online.OnlineEstimator`).
 """
@@ -256,21 +273,25 @@ class FeedforwardController(_Controller):
     """
 
     def __init__(self, pipeline, *, motor_limits=None, rate_limit=None, reach_tol_mm=2.0,
-                 max_iter=8, damping=0.05, engine="auto"):
+                 max_iter=8, damping=0.05, latency=1, engine="auto"):
         self.pipeline = pipeline
         self.motor_limits = motor_limits
         self.rate_limit = rate_limit
         self.reach_tol_mm = reach_tol_mm
         self.max_iter = max_iter
         self.damping = damping
+        self.latency = latency
         self.engine = engine
 
     def step(self, target, obs):
         self._check_started()
         target = check_target(target)
         self._observe(obs)
-        z, _, _ = self._aim(target)
-        return self._issue(z)
+        try:
+            z, _, _ = self._aim(target)
+            return self._issue(z)
+        finally:
+            self.model_.end()
 
     step.__doc__ = _STEP_DOC
 
@@ -317,7 +338,8 @@ class FeedbackController(_Controller):
     }
 
     def __init__(self, pipeline, *, close_on="estimate", feedforward=True, gain=0.5, motor_limits=None,
-                 rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05, engine="auto"):
+                 rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05, latency=1,
+                 engine="auto"):
         self.pipeline = pipeline
         self.close_on = close_on
         self.feedforward = feedforward
@@ -327,19 +349,30 @@ class FeedbackController(_Controller):
         self.reach_tol_mm = reach_tol_mm
         self.max_iter = max_iter
         self.damping = damping
+        self.latency = latency
         self.engine = engine
 
     def _reset_feedback(self):
         self.correction_ = np.zeros_like(self.command_)
         self._z_wanted = self.command_.copy()
+        self._aims = deque([None] * (self.latency + 1), maxlen=self.latency + 1)
 
     def step(self, target, obs):
         self._check_started()
         target = check_target(target)
-        aimed_before = self.aimed_
+        aimed_before = self._aims[0]  # the aim of the command the observation shows
         estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
-        measured = estimate if tip is None else tip
+        try:
+            return self._feedback(target, aimed_before, estimate if tip is None else tip)
+        finally:
+            self.model_.end()
+
+    step.__doc__ = _STEP_DOC
+
+    def _feedback(self, target, aimed_before, measured):
+        """The command from the model's solution and the error of the aim the observation shows."""
         z_ff, aimed, J = self._aim(target)
+        self._aims.append(aimed)
         if self.feedforward:
             if aimed_before is not None and not self._limited:
                 self.correction_ = self.correction_ + self.gain * damped_solve(
@@ -351,5 +384,3 @@ class FeedbackController(_Controller):
             step = self.gain * damped_solve(J, aimed - measured, self.damping)
             self._z_wanted = self.limits_.project(self._z_wanted + step)
         return self._issue(self._z_wanted)
-
-    step.__doc__ = _STEP_DOC

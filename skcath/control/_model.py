@@ -65,10 +65,25 @@ class ModelInverse:
         self.n_motors = len(estimator.q_neutral_)
         self.n_evaluations = 0
 
-    def freeze(self):
-        """Take the estimator's present state as the one every evaluation starts from."""
-        np.copyto(self._f0, self._f)
-        np.copyto(self._buf0, self._buf)
+    def begin(self, pending):
+        """Advance the state by the commanded samples not observed yet; evaluations start from there.
+
+        ``pending`` holds those samples (tuples of the channels), oldest
+        first, stepped with the play in front of the backbone. The
+        estimator's own state is kept aside and restored by :meth:`end`.
+        """
+        self._saved = (self._f.copy(), self._buf.copy())
+        function, meta, f, theta, w, w32, buf = self._call
+        out = np.empty(3)
+        for sample in pending:
+            function(meta, f, theta, w, w32, buf, out, sample)
+        np.copyto(self._f0, f)
+        np.copyto(self._buf0, buf)
+
+    def end(self):
+        """Give the estimator back the state it had before :meth:`begin`."""
+        np.copyto(self._f, self._saved[0])
+        np.copyto(self._buf, self._saved[1])
 
     def tip(self, z, torques, out):
         """Model tip (mm) of the next sample at effective angles ``z`` (deg), into ``out``."""
