@@ -9,6 +9,7 @@ __all__ = [
     "GroupsNotUsedWarning",
     "IncompatibleVersionError",
     "InconsistentVersionWarning",
+    "MotorLimitWarning",
     "PickledFileError",
     "PipelineChangedWarning",
     "SampleRateWarning",
@@ -123,4 +124,13 @@ class SampleRateWarning(UserWarning):
     CUSUM ``threshold`` or ``drift`` keeps its default (chosen at 10 Hz) at a
     rate more than 10 % from 10 Hz. The residual learners give their time
     scales in seconds and need no such warning.
+    """
+
+
+class MotorLimitWarning(UserWarning):
+    """A motor command beyond the motors' range was clipped to it.
+
+    Warned by :meth:`skcath.datasets.SimulatedCatheter.step` at the first
+    command of a run that leaves ``[-motor_limit_deg, motor_limit_deg]``; the
+    rig counts the clipped commands in ``n_clipped_``.
     """

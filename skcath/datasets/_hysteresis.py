@@ -20,7 +20,7 @@ motors: arrays have shape ``(n_steps, n_runs, n_motors)``.
 
 import numpy as np
 
-__all__ = ["MECHANISMS", "simulate_transmission", "torsional_windup"]
+__all__ = ["MECHANISMS", "WindupStepper", "simulate_transmission", "torsional_windup", "transmission_stepper"]
 
 MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 
@@ -36,7 +36,7 @@ def _width(u, params):
 PLAY_ELEMENTS = np.geomspace(0.3, 8.0, 6)
 
 
-def _play(u, dt, params):
+class _Play:
     """Load-dependent play operators in parallel (distributed Coulomb friction).
 
     Each element ``m`` follows ``z_k = clip(z_{k-1}, u_k - m w(u_k), u_k + r m w(u_k))``
@@ -50,21 +50,20 @@ def _play(u, dt, params):
     utilisation ``phi`` is the mean over elements of where each sits
     between its two branches.
     """
-    n = u.shape[0]
-    r = params["asym"]
-    m = PLAY_ELEMENTS[:, None, None]
-    v = np.empty_like(u)
-    phi = np.empty_like(u)
-    z = np.repeat(u[:1], len(PLAY_ELEMENTS), axis=0)
-    for k in range(n):
-        w = m * _width(u[k], params)
-        z = np.clip(z, u[k] - w, u[k] + r * w)
-        v[k] = z.mean(axis=0)
-        phi[k] = ((2.0 * (u[k] - z) + (r - 1.0) * w) / ((1.0 + r) * w)).mean(axis=0)
-    return v, phi
+
+    def __init__(self, u0, dt, params):
+        self.params = params
+        self.z = np.repeat(u0[None], len(PLAY_ELEMENTS), axis=0)
+
+    def step(self, uk):
+        r = self.params["asym"]
+        w = PLAY_ELEMENTS[:, None, None] * _width(uk, self.params)
+        self.z = z = np.clip(self.z, uk - w, uk + r * w)
+        phi = ((2.0 * (uk - z) + (r - 1.0) * w) / ((1.0 + r) * w)).mean(axis=0)
+        return z.mean(axis=0), phi
 
 
-def _bouc_wen(u, dt, params):
+class _BoucWen:
     """Asymmetric Bouc-Wen lag ``h`` (degrees); output ``v = u - h``.
 
     Discrete update with ``A = 1``::
@@ -79,27 +78,25 @@ def _bouc_wen(u, dt, params):
     elements of widths ``m w`` (:data:`PLAY_ELEMENTS`) act in parallel and the
     output is their mean.
     """
-    n = u.shape[0]
-    m = PLAY_ELEMENTS[:, None, None]
-    r = params["asym"]
-    delta = (1.0 - r) / (1.0 + r)
-    kappa = params["kappa"]
-    v = np.empty_like(u)
-    phi = np.empty_like(u)
-    h = np.zeros((len(PLAY_ELEMENTS), *u[0].shape))
-    u_prev = u[0]
-    for k in range(n):
-        du = u[k] - u_prev
-        u_prev = u[k]
-        w = m * _width(u[k], params) * (0.5 + 0.5 * r)
+
+    def __init__(self, u0, dt, params):
+        self.params = params
+        self.h = np.zeros((len(PLAY_ELEMENTS), *u0.shape))
+        self.u_prev = u0
+
+    def step(self, uk):
+        r, kappa = self.params["asym"], self.params["kappa"]
+        delta = (1.0 - r) / (1.0 + r)
+        du = uk - self.u_prev
+        self.u_prev = uk
+        w = PLAY_ELEMENTS[:, None, None] * _width(uk, self.params) * (0.5 + 0.5 * r)
         adu = np.abs(du)
-        h = (h + du + delta * adu - (kappa / w) * du * np.abs(h)) / (1.0 + ((1.0 - kappa) / w) * adu)
-        v[k] = u[k] - h.mean(axis=0)
-        phi[k] = np.clip(h / w - delta, -1.0, 1.0).mean(axis=0)
-    return v, phi
+        h = self.h
+        self.h = h = (h + du + delta * adu - (kappa / w) * du * np.abs(h)) / (1.0 + ((1.0 - kappa) / w) * adu)
+        return uk - h.mean(axis=0), np.clip(h / w - delta, -1.0, 1.0).mean(axis=0)
 
 
-def _dahl_creep(u, dt, params):
+class _DahlCreep:
     """Rate-dependent Dahl friction with viscoelastic tendon creep.
 
     The friction lag ``h`` follows a Dahl model whose limit grows with the
@@ -113,30 +110,53 @@ def _dahl_creep(u, dt, params):
     ``h`` the mean lag of distributed elements of widths ``m w``
     (:data:`PLAY_ELEMENTS`), as for the play.
     """
-    n = u.shape[0]
-    m = PLAY_ELEMENTS[:, None, None]
-    rate_gain, rate_speed = params["rate_gain"], params["rate_speed"]
-    creep_gain = params["creep_gain"]
-    relax = 1.0 - np.exp(-dt / params["creep_tau"])
-    v = np.empty_like(u)
-    phi = np.empty_like(u)
-    h = np.zeros((len(PLAY_ELEMENTS), *u[0].shape))
-    c = np.zeros_like(u[0])
-    u_prev = u[0]
-    for k in range(n):
-        du = u[k] - u_prev
-        u_prev = u[k]
-        w = m * _width(u[k], params)
-        w = w * (1.0 + rate_gain * np.tanh(np.abs(du) / (dt * rate_speed)))
-        h = (h + du) / (1.0 + np.abs(du) / w)
+
+    def __init__(self, u0, dt, params):
+        self.params, self.dt = params, dt
+        self.relax = 1.0 - np.exp(-dt / params["creep_tau"])
+        self.h = np.zeros((len(PLAY_ELEMENTS), *u0.shape))
+        self.c = np.zeros_like(u0)
+        self.u_prev = u0
+
+    def step(self, uk):
+        p = self.params
+        du = uk - self.u_prev
+        self.u_prev = uk
+        w = PLAY_ELEMENTS[:, None, None] * _width(uk, p)
+        w = w * (1.0 + p["rate_gain"] * np.tanh(np.abs(du) / (self.dt * p["rate_speed"])))
+        self.h = h = (self.h + du) / (1.0 + np.abs(du) / w)
         lag = h.mean(axis=0)
-        c = c + (creep_gain * (u[k] - lag) - c) * relax
-        v[k] = u[k] - lag - c
-        phi[k] = np.clip(h / w, -1.0, 1.0).mean(axis=0)
-    return v, phi
+        self.c = c = self.c + (p["creep_gain"] * (uk - lag) - self.c) * self.relax
+        return uk - lag - c, np.clip(h / w, -1.0, 1.0).mean(axis=0)
 
 
-_STEPPERS = {"play": _play, "bouc_wen": _bouc_wen, "dahl_creep": _dahl_creep}
+_STEPPERS = {"play": _Play, "bouc_wen": _BoucWen, "dahl_creep": _DahlCreep}
+
+
+def transmission_stepper(u0, dt, params, mechanism="play"):
+    """The transmission of :func:`simulate_transmission`, one sample at a time.
+
+    Parameters
+    ----------
+    u0 : ndarray of shape (n_runs, n_motors)
+        Motor input at the first sample (degrees), which sets the initial
+        state (the mechanism starts at rest there).
+    dt, params, mechanism
+        As for :func:`simulate_transmission`.
+
+    Returns
+    -------
+    stepper : object
+        Its ``step(u_k)`` takes the input of the next sample, the first
+        being ``u0``, and returns ``v_k, phi_k`` of shape (n_runs, n_motors),
+        the rows of :func:`simulate_transmission`'s output, bit for bit.
+    """
+    if mechanism not in _STEPPERS:
+        raise ValueError(f"mechanism={mechanism!r} is not one of {MECHANISMS}.")
+    u0 = np.asarray(u0, dtype=float)
+    # the loads of the other motors: a 0/1 matrix, exact for two motors
+    others = 1.0 - np.eye(u0.shape[-1])
+    return _STEPPERS[mechanism](u0, dt, {**params, "others": others})
 
 
 def simulate_transmission(u, dt, params, mechanism="play"):
@@ -168,9 +188,12 @@ def simulate_transmission(u, dt, params, mechanism="play"):
     u = np.asarray(u, dtype=float)
     if u.ndim != 3 or u.shape[2] < 1:
         raise ValueError(f"u must have shape (n_steps, n_runs, n_motors); got {u.shape}.")
-    # the loads of the other motors: a 0/1 matrix, exact for two motors
-    others = 1.0 - np.eye(u.shape[2])
-    return _STEPPERS[mechanism](u, dt, {**params, "others": others})
+    stepper = transmission_stepper(u[0], dt, params, mechanism)
+    v = np.empty_like(u)
+    phi = np.empty_like(u)
+    for k in range(u.shape[0]):
+        v[k], phi[k] = stepper.step(u[k])
+    return v, phi
 
 
 def torsional_windup(u, width):
@@ -202,3 +225,40 @@ def torsional_windup(u, width):
         state = np.clip(state, psi[k] - w[k], psi[k] + w[k])
         offset[k] = state - psi[k]
     return offset
+
+
+class WindupStepper:
+    """The torsional wind-up of :func:`torsional_windup`, one sample at a time.
+
+    Unwraps the input azimuth as :func:`numpy.unwrap` does (the same
+    corrections, summed in the same order), so that its outputs are those of
+    :func:`torsional_windup` bit for bit.
+
+    Parameters
+    ----------
+    width : ndarray of shape (n_runs,)
+        Largest azimuth lag (rad).
+    """
+
+    def __init__(self, width):
+        self.width = width
+        self.raw = None
+
+    def step(self, uk):
+        """Azimuth offset (rad) of shape (n_runs,) at the next sample of bending inputs ``uk`` (n_runs, 2)."""
+        raw = np.arctan2(uk[..., 1], uk[..., 0])
+        if self.raw is None:
+            self.correction = np.zeros_like(raw)
+            psi = raw.copy()
+            self.state = psi.copy()
+        else:
+            dd = raw - self.raw
+            ddmod = np.mod(dd + np.pi, 2.0 * np.pi) - np.pi
+            ddmod = np.where((ddmod == -np.pi) & (dd > 0), np.pi, ddmod)
+            fix = np.where(np.abs(dd) < np.pi, 0.0, ddmod - dd)
+            self.correction = self.correction + fix
+            psi = raw + self.correction
+        self.raw = raw
+        w = self.width * np.tanh(np.hypot(uk[..., 0], uk[..., 1]) / 20.0)
+        self.state = np.clip(self.state, psi - w, psi + w)
+        return self.state - psi

@@ -9,7 +9,7 @@ over 50 mm).
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["DistortionField", "measure_pose"]
+__all__ = ["DistortionField", "measure_pose", "noisy_pose", "pose_noise"]
 
 
 class DistortionField:
@@ -66,10 +66,21 @@ def measure_pose(rng, position, rotation, field, *, position_noise_mm=0.15, orie
     quaternion : ndarray of shape (n, 4)
         Reported orientation, scalar first (w, x, y, z).
     """
-    n = len(position)
-    measured = position + rng.normal(0.0, position_noise_mm, size=(n, 3))
+    noise = pose_noise(rng, len(position), position_noise_mm, orientation_noise_deg)
+    return noisy_pose(position, rotation, field, noise)
+
+
+def pose_noise(rng, n, position_noise_mm=0.15, orientation_noise_deg=0.2):
+    """The jitter of ``n`` poses of :func:`measure_pose`: position (mm) and rotation vector (rad), each (n, 3)."""
+    position = rng.normal(0.0, position_noise_mm, size=(n, 3))
+    return position, rng.normal(0.0, np.deg2rad(orientation_noise_deg), size=(n, 3))
+
+
+def noisy_pose(position, rotation, field, noise):
+    """What :func:`measure_pose` reports for a true pose, given its jitter ``noise`` (:func:`pose_noise`)."""
+    measured = position + noise[0]
     if field is not None:
         measured = measured + field(position)
-    jitter = Rotation.from_rotvec(rng.normal(0.0, np.deg2rad(orientation_noise_deg), size=(n, 3)))
+    jitter = Rotation.from_rotvec(noise[1])
     quat = (rotation * jitter).as_quat()  # x, y, z, w
     return measured, np.roll(quat, 1, axis=1)

@@ -21,7 +21,7 @@ from ._catheter import Catheter, ShaftSetting, sample_catheter, setting_paramete
 from ._hysteresis import MECHANISMS, simulate_transmission, torsional_windup
 from ._kinematics import bend_from_inputs, tip_position, tip_rotvec
 from ._protocol import protocol_trajectory, resweep_trajectory
-from ._sensors import DistortionField, measure_pose
+from ._sensors import DistortionField, noisy_pose, pose_noise
 from ._tendons import MotorCount, tendon_layout
 
 __all__ = [
@@ -247,8 +247,9 @@ def _draw_run(spec, variation, rate_hz=RATE_HZ):
     gain_jitter = rng.normal(0.0, v["gain_jitter"], n_motors)
     gain_drift = _ou(rng, n_protocol, v["gain_drift"], v["gain_drift_tau_s"], t, n_motors)
     gain_scale = 1.0 + gain_jitter + gain_drift
-    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets,
-            "gain_scale": gain_scale, "rate_hz": rate_hz, "n_protocol": n_protocol}
+    draw = {"rng": rng, "q": q, "n_sweep": n_sweep, "cfg": cfg, "u": q - offsets, "offsets": offsets,
+            "gain_scale": gain_scale, "rate_hz": rate_hz, "n_protocol": n_protocol,
+            "drifts": {"offsets": (jitter, drift), "gains": (gain_jitter, gain_drift)}}
     if spec.change is not None:
         # same per-run jitter and drift; only the setting's offsets move
         k = n_sweep + int(round(spec.change.after_s * rate_hz))
@@ -364,8 +365,13 @@ def _creep_and_lag(cat, v, rate_hz=RATE_HZ):
 def _drive_torque(cat, q, drive, rng, rate_hz=RATE_HZ):
     """Measured motor torques (N mm): the tendon torque plus motor friction, noise and rounding."""
     omega = np.gradient(q, 1.0 / rate_hz, axis=0)
+    return _torque_reading(cat, omega, drive, rng.normal(0.0, cat.torque_noise, size=drive.shape))
+
+
+def _torque_reading(cat, omega, drive, noise):
+    """Measured motor torques (N mm) at motor speeds ``omega`` (deg/s), given their ``noise``."""
     tau = drive + cat.motor_friction * np.tanh(omega) + cat.motor_viscous * omega
-    tau = tau + rng.normal(0.0, cat.torque_noise, size=tau.shape)
+    tau = tau + noise
     return np.round(tau / cat.torque_step) * cat.torque_step
 
 
@@ -393,22 +399,46 @@ def _mounted(cat, p_k):
 
 def _poses(cat, r_wk, p_wk, p_k, a, delta):
     """True poses of the tip and base sensors in the tracker frame, the section's base at ``(r_wk, p_wk)``."""
+    return (*_tip_pose(r_wk, p_wk, p_k, a, delta), *_base_sensor_pose(cat, r_wk, p_wk, len(p_k)))
+
+
+def _tip_pose(r_wk, p_wk, p_k, a, delta):
+    """True pose of the tip sensor in the tracker frame, the section's base at ``(r_wk, p_wk)``."""
+    return p_wk + r_wk.apply(p_k), r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
+
+
+def _base_sensor_pose(cat, r_wk, p_wk, n):
+    """True pose of the base sensor at ``n`` samples, the section's base at ``(r_wk, p_wk)``."""
     mount = Rotation.from_rotvec(cat.mount_rotvec)  # kinematic frame K -> base-sensor frame B
-    n = len(p_k)
-    tip_pos = p_wk + r_wk.apply(p_k)
-    tip_rot = r_wk * Rotation.from_rotvec(tip_rotvec(a, delta))
     base_pos = np.repeat((p_wk + r_wk.apply(cat.mount_position))[None], n, axis=0)
     base_rot = Rotation.from_quat(np.repeat((r_wk * mount.inv()).as_quat()[None], n, axis=0))
-    return tip_pos, tip_rot, base_pos, base_rot
+    return base_pos, base_rot
 
 
 def _measure(rng, poses, field, dropout_rate):
     """Measured tip in the base frame and the raw sensor poses, from the true poses."""
+    return _measured(poses, field, _measurement_noise(rng, len(poses[0]), dropout_rate))
+
+
+def _measurement_noise(rng, n, dropout_rate):
+    """The sensor jitter of ``n`` samples, tip then base, and which tip samples are lost (None: none)."""
+    tip, base = pose_noise(rng, n), pose_noise(rng, n)
+    return tip, base, (rng.random(n) < dropout_rate if dropout_rate > 0 else None)
+
+
+def _measured(poses, field, noise):
+    """Measured tip in the base frame and the raw sensor poses, from the true poses and their noise."""
     tip_pos, tip_rot, base_pos, base_rot = poses
-    tip_meas, tip_quat = measure_pose(rng, tip_pos, tip_rot, field)
-    base_meas, base_quat = measure_pose(rng, base_pos, base_rot, field)
-    if dropout_rate > 0:
-        lost = rng.random(len(tip_pos)) < dropout_rate
+    tip_noise, base_noise, lost = noise
+    base = noisy_pose(base_pos, base_rot, field, base_noise)
+    return _measured_tip((tip_pos, tip_rot), base, field, tip_noise, lost)
+
+
+def _measured_tip(tip_pose, base, field, tip_noise, lost):
+    """Measured tip in the base frame and the raw sensor poses, given the measured base sensor ``base``."""
+    tip_meas, tip_quat = noisy_pose(*tip_pose, field, tip_noise)
+    base_meas, base_quat = base
+    if lost is not None:
         tip_meas[lost] = np.nan
         tip_quat[lost] = np.nan
     y = tip_in_base_frame(tip_meas, base_meas, base_quat, quat_order="wxyz")
