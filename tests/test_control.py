@@ -10,6 +10,7 @@ the limits (motor and rate limits never exceeded, unreachable targets
 clipped with a warning) and the bad inputs.
 """
 
+import importlib.util
 import warnings
 
 import numpy as np
@@ -289,3 +290,16 @@ def test_latency_counts_the_commands_not_yet_observed(runs, pipes):
     torques = sweep[["tau1", "tau2"]].to_numpy()[-1]
     tips = np.array([est.step(*c, *torques).copy() for c in commands])
     assert np.quantile(np.linalg.norm(tips - targets, axis=1), 0.95) < 0.05
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="the numba engine needs numba")
+def test_compiled_inverse_gives_the_commands_of_the_numpy_one(runs, pipes):
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")  # one command per tip: no dead zone to pick among equal commands
+    targets = _model_tips(pipe, sweep, motion)
+    commands = {}
+    for engine in ("numpy", "numba"):
+        controller = FeedbackController(pipe, engine=engine, latency=0).start(sweep)
+        assert (controller.model_._compiled is not None) == (engine == "numba")
+        commands[engine] = _drive(controller, ModelPlant(pipe, sweep), targets)[1]
+    np.testing.assert_allclose(commands["numba"], commands["numpy"], atol=1e-6)

@@ -91,7 +91,7 @@ class _Controller(BaseEstimator):
         self.dt_ = float(np.median(np.diff(t))) if len(t) > 1 else 0.1
         self.estimator_ = est
         self.inverse_ = hysteresis_inverse(est)
-        self.model_ = ModelInverse(est, self.limits_.project, eps_deg=1e-3)
+        self.model_ = ModelInverse(est, self.limits_.project, eps_deg=1e-3, limits=self.limits_)
         self._grid_z, self._grid_tips = _seed_grid(est, self.limits_)
         self.command_ = self.limits_.project(q[-1])
         self._z_solution = self.command_.copy()

@@ -17,6 +17,9 @@ import numpy as np
 
 __all__ = ["INVERSES", "IdentityInverse", "PlayInverse", "hysteresis_inverse"]
 
+#: A wanted effective angle this close to the present one (deg) needs no motion.
+TOL_DEG = 1e-6
+
 
 class IdentityInverse:
     """No hysteresis: the command is the wanted effective angle."""
@@ -49,7 +52,8 @@ class PlayInverse:
     from it, so to move the played angle to ``z`` the motor goes to
     ``z + width`` when ``z`` lies above the present played angle and to
     ``z - width`` when below; a motor whose played angle is already where it
-    is wanted keeps its command, brought within ``width`` of ``z``.
+    is wanted (within :data:`TOL_DEG`) keeps its command, brought within
+    ``width`` of ``z``.
 
     Parameters
     ----------
@@ -66,7 +70,8 @@ class PlayInverse:
         """Motor command (deg) that plays the effective angles to ``z_wanted``; as :meth:`IdentityInverse.command`."""
         z = np.asarray(z_wanted, dtype=float)
         w = self.width
-        up, down = z > z_state, z < z_state
+        # within TOL_DEG of the played angle counts as there: rounding does not flip the side
+        up, down = z > z_state + TOL_DEG, z < z_state - TOL_DEG
         return np.where(up, z + w, np.where(down, z - w, np.clip(q_previous, z - w, z + w)))
 
 

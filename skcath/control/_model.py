@@ -54,10 +54,16 @@ class ModelInverse:
         Step of the finite differences (deg).
     """
 
-    def __init__(self, estimator, project, eps_deg):
+    def __init__(self, estimator, project, eps_deg, limits=None):
         self.estimator = estimator
         self.project = project
         self.eps = float(eps_deg)
+        self._compiled = None
+        if limits is not None and estimator.engine_ == "numba":
+            from ._jit import solve_kernel
+
+            self._compiled = solve_kernel()
+            self._limits = (limits.low, limits.high, limits.neutral, limits.radius)
         function, meta, f, theta, w, w32, buf = estimator._call
         self._call = (function, meta, f, theta, w, w32, buf)
         self._f, self._buf = f, buf
@@ -123,6 +129,12 @@ class ModelInverse:
         J : ndarray of shape (3, n_motors)
             Jacobian at ``z`` (mm/deg).
         """
+        if self._compiled is not None:
+            z, tip, J = np.array(z0, dtype=float), np.empty(3), np.empty((3, self.n_motors))
+            self._compiled(self._call[1:], self._f0, self._buf0, np.asarray(target, dtype=float), z,
+                           np.asarray(torques, dtype=float), self._limits,
+                           (self.eps, float(max_iter), float(tol_deg), float(damping)), tip, J)
+            return z, tip, J
         z = self.project(np.asarray(z0, dtype=float))
         tip = self.tip(z, torques, np.empty(3))
         cost = float(np.sum((target - tip) ** 2))
