@@ -8,7 +8,7 @@ import pytest
 from numpy.testing import assert_array_equal
 from sklearn.exceptions import NotFittedError
 
-from skcath.datasets import SimulatedCatheter, benchmark_catheter
+from skcath.datasets import SimulatedCatheter, benchmark_catheter, shaft_settings
 from skcath.datasets._benchmark import _benchmark_field, benchmark_specs
 from skcath.datasets._simulator import simulate_runs
 from skcath.exceptions import MotorLimitWarning
@@ -183,7 +183,23 @@ def test_bad_parameters_raise_at_reset(params, match):
         rig.reset()
 
 
-def test_a_unit_must_be_named_like_a_benchmark_unit():
+def test_a_unit_must_be_named_like_a_benchmark_unit_and_a_setting_like_a_benchmark_setting():
     cat = dataclasses.replace(benchmark_catheter(1), name="mine")
     with pytest.raises(ValueError, match="'C1', 'C2'"):
         SimulatedCatheter(cat).reset()
+    setting = dataclasses.replace(shaft_settings()[3], name="bent")
+    with pytest.raises(ValueError, match="'bent' is not one of the benchmark's settings"):
+        SimulatedCatheter(1, setting).reset()
+
+
+def test_a_lost_tip_sensor_gives_a_nan_tip_in_the_record_only():
+    rig = SimulatedCatheter(2, "S07", tracker=True, dropout_rate=0.3, rate_hz=2.0)
+    sweep = rig.reset()
+    lost_sweep = sweep["ref_x"].isna().mean()
+    assert 0.2 < lost_sweep < 0.4
+    records, tips = [], []
+    for k in range(200):
+        records.append(rig.step([0.1 * k, -0.05 * k])["x"])
+        tips.append(rig.tip_)
+    assert 0.15 < np.isnan(records).mean() < 0.45
+    assert np.all(np.isfinite(tips))

@@ -168,6 +168,13 @@ def _constant_speed(points, speed_mm_s, rate_hz):
 
 _SHRINK = Interval(Real, 0, 1, closed="right")
 _SPEED = Interval(Real, 0, None, closed="neither")
+#: Parameter constraints of the path tasks.
+_PATH_CONSTRAINTS = {
+    "sweep": ["array-like"],
+    "speed_mm_s": [_SPEED],
+    "shrink": [_SHRINK],
+    "n_laps": [Interval(Real, 0, None, closed="neither")],
+}
 
 
 @validate_params(
@@ -217,15 +224,7 @@ def reach_task(sweep, *, n_targets=6, hold_s=5.0, shrink=0.7, random_state=None)
     return Task("reach", target, rate, changes, np.ones(len(target), dtype=bool))
 
 
-@validate_params(
-    {
-        "sweep": ["array-like"],
-        "speed_mm_s": [_SPEED],
-        "shrink": [_SHRINK],
-        "n_laps": [Interval(Real, 0, None, closed="neither")],
-    },
-    prefer_skip_nested_validation=True,
-)
+@validate_params(_PATH_CONSTRAINTS, prefer_skip_nested_validation=True)
 def circle_task(sweep, *, speed_mm_s=5.0, shrink=0.7, n_laps=2):
     """Follow a circle on the reachable surface at a constant tip speed.
 
@@ -268,15 +267,7 @@ def _path_task(name, neutral, points, speed_mm_s, rate):
     return Task(name, target, rate, (), scored)
 
 
-@validate_params(
-    {
-        "sweep": ["array-like"],
-        "speed_mm_s": [_SPEED],
-        "shrink": [_SHRINK],
-        "n_laps": [Interval(Real, 0, None, closed="neither")],
-    },
-    prefer_skip_nested_validation=True,
-)
+@validate_params(_PATH_CONSTRAINTS, prefer_skip_nested_validation=True)
 def figure_eight_task(sweep, *, speed_mm_s=5.0, shrink=0.7, n_laps=1):
     """Follow a figure-eight on the reachable surface at a constant tip speed.
 
