@@ -37,7 +37,13 @@ time of the estimator's own step on the same observations (a fresh
 ``OnlineEstimator`` of the same pipeline stepping the recorded samples), on
 the same engine.
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]``.
+``--timing N`` instead times N steps (CPU time, ``time.process_time``) of
+each controller and of the estimator alone on the same samples, on the
+numba engine and the fast path (observations as tuples), for a pipeline of
+PDL with the play and ``NoResidual`` (see ``time_steps``).
+
+Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]
+[--mechanisms ...] [--settings ...] [--timing N]``.
 """
 
 import argparse
@@ -186,14 +192,64 @@ def summary(rows):
             print(f"| {mech:10s} | {task:19s} | {cl / pcc:5.2f} | {cl / est:5.2f} |")
 
 
+def time_steps(n_steps, seed):
+    """CPU time (us) of one step of each controller and of the estimator alone, fast path, numba engine.
+
+    A pipeline of PDL with the play and ``NoResidual`` (fitted on one unit)
+    steers the rig's own records back as targets: the model's tip for the
+    recorded samples of a ``SimulatedCatheter`` run (catheter 3, S05) driven
+    along a random walk; observations are passed as tuples.
+    """
+    from skcath.residuals import NoResidual
+
+    bench = make_benchmark(n_catheters=1, n_runs=1, random_state=seed)
+    backbone = PDLBackbone(hysteresis="play").fit(bench.X)
+    pipe = Pipeline([("backbone", backbone),
+                     ("residual", NoResidual().fit(backbone.transform(bench.X), bench.y))])
+    rig = SimulatedCatheter(catheter=3, setting="S05", random_state=seed)
+    sweep = rig.reset()
+    rng = np.random.default_rng(seed)
+    walk = np.clip(np.cumsum(rng.normal(0.0, 1.0, size=(n_steps, 2)), axis=0), -45.0, 45.0)
+    est = OnlineEstimator(pipe, engine="numba").start(sweep)
+    records = [rig.step(q) for q in walk]
+    samples = [tuple(r[c] for c in est.channels_) for r in records]
+    targets = [est.step(*x).copy() for x in samples]
+    out = {}
+    for name, controller in (("estimator step", None),
+                             ("FeedforwardController.step", FeedforwardController(pipe, engine="numba")),
+                             ("FeedbackController.step", FeedbackController(pipe, engine="numba"))):
+        if controller is None:
+            est.reset()
+            cpu = time.process_time()
+            for x in samples:
+                est.step(*x)
+        else:
+            controller.start(sweep)
+            controller.step(targets[0], samples[0])  # the compiled solve loaded outside the timing
+            cpu = time.process_time()
+            for target, x in zip(targets, samples):
+                controller.step(target, x)
+        out[name] = 1e6 * (time.process_time() - cpu) / n_steps
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the play mechanism and setting S05 only")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--mechanisms", nargs="+", default=None, choices=("play", "bouc_wen", "dahl_creep"))
+    parser.add_argument("--settings", nargs="+", default=None, help="shaft settings of the rig")
+    parser.add_argument("--timing", type=int, default=0, metavar="N",
+                        help="only time N steps of each controller and of the estimator (CPU time)")
     args = parser.parse_args()
+    if args.timing:
+        times = time_steps(args.timing, args.seed)
+        for name, us in times.items():
+            print(f"| {name:28s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x |")
+        return
     warnings.simplefilter("ignore", UnreachableTargetWarning)
-    mechanisms = ("play",) if args.quick else ("play", "bouc_wen", "dahl_creep")
-    settings = ("S05",) if args.quick else ("S05", "S12")
+    mechanisms = args.mechanisms or (("play",) if args.quick else ("play", "bouc_wen", "dahl_creep"))
+    settings = args.settings or (("S05",) if args.quick else ("S05", "S12"))
     print("| " + " | ".join(HEADER) + " |")
     rows = []
     for mechanism in mechanisms:

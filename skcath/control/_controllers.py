@@ -147,12 +147,14 @@ class _Controller(BaseEstimator):
         found (a local minimum, e.g. in a dead zone of the backbone).
         """
         z, tip, J = self._solve(target, self._z_solution)
-        d2 = np.sum((self._grid_tips - target) ** 2, axis=1)
-        best = int(np.argmin(d2))
-        if d2[best] + GRID_MARGIN_MM < float(np.sum((target - tip) ** 2)):
-            z2, tip2, J2 = self._solve(target, self._grid_z[best])
-            if np.sum((target - tip2) ** 2) < np.sum((target - tip) ** 2):
-                z, tip, J = z2, tip2, J2
+        miss2 = float(np.sum((target - tip) ** 2))
+        if miss2 > GRID_MARGIN_MM:  # else no grid tip can be closer by the margin
+            d2 = np.sum((self._grid_tips - target) ** 2, axis=1)
+            best = int(np.argmin(d2))
+            if d2[best] + GRID_MARGIN_MM < miss2:
+                z2, tip2, J2 = self._solve(target, self._grid_z[best])
+                if np.sum((target - tip2) ** 2) < miss2:
+                    z, tip, J = z2, tip2, J2
         self._z_solution = z
         miss = float(np.linalg.norm(target - tip))
         if miss > self.reach_tol_mm:

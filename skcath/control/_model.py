@@ -37,7 +37,7 @@ def damped_solve(J, r, damping):
         Step of the effective angles (deg).
     """
     A = J.T @ J
-    A[np.diag_indices_from(A)] += damping * damping
+    A.flat[:: A.shape[0] + 1] += damping * damping
     return np.linalg.solve(A, J.T @ r)
 
 
