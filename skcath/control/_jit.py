@@ -1,4 +1,4 @@
-"""The model's inverse compiled by numba: the Levenberg-Marquardt solve of :class:`~skcath.control._model.ModelInverse`.
+"""The model's inverse compiled by numba: the solve of :class:`~skcath.control._model.ModelInverse`.
 
 Imported only for an estimator on the numba engine (it imports numba). The
 solve runs the estimator's compiled step (:data:`skcath.online._jit.step_kernel`)
