@@ -38,6 +38,7 @@ and a one-unit training benchmark).
 """
 
 import argparse
+import importlib
 import time
 import warnings
 
@@ -75,20 +76,23 @@ class SweepLookup:
 #: name -> (backbone of the pipeline it needs or None, whether the rig's tracker is on, factory(pipeline))
 CONTROLLERS = {"sweep lookup": (None, False, lambda pipeline: SweepLookup())}
 
-try:
-    from skcath.control import FeedbackController, FeedforwardController
+try:  # an optional package: imported by name, so that the script runs without it
+    control = importlib.import_module("skcath.control")
 except ImportError:
     CONTROL_MISSING = True
 else:
     CONTROL_MISSING = False
     _LIMITS = {"rate_limit": 60.0}  # deg/s; latency=1 (the default) is the rig's timing
     CONTROLLERS.update({
-        "PCC inverse, open loop": ("pcc", False, lambda p: FeedforwardController(p, **_LIMITS)),
-        "PDL inverse, open loop": ("pdl", False, lambda p: FeedforwardController(p, **_LIMITS)),
-        "skcath feedforward": ("pdl-play", False, lambda p: FeedforwardController(p, **_LIMITS)),
-        "skcath closed loop (estimate)": ("pdl-play", False, lambda p: FeedbackController(p, **_LIMITS)),
-        "closed on the tracker": ("pdl-play", True,
-                                  lambda p: FeedbackController(p, close_on="tracker", **_LIMITS)),
+        "PCC inverse, open loop": ("pcc", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "PDL inverse, open loop": ("pdl", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "skcath feedforward": ("pdl-play", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "skcath closed loop (estimate)": (
+            "pdl-play", False, lambda p: control.FeedbackController(p, **_LIMITS)
+        ),
+        "closed on the tracker": (
+            "pdl-play", True, lambda p: control.FeedbackController(p, close_on="tracker", **_LIMITS)
+        ),
     })
 
 

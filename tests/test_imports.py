@@ -229,10 +229,11 @@ def test_exceptions_are_the_same_classes_everywhere():
 
     assert set(exceptions.__all__) == {
         "FileSuffixWarning", "GroupsNotUsedWarning", "InconsistentVersionWarning",
-        "IncompatibleVersionError", "PickledFileError", "PipelineChangedWarning",
-        "SampleRateWarning",
+        "IncompatibleVersionError", "MotorLimitWarning", "PickledFileError",
+        "PipelineChangedWarning", "SampleRateWarning",
         "TruncatedFileWarning",
     }
+    assert issubclass(exceptions.MotorLimitWarning, UserWarning)
     assert issubclass(exceptions.SampleRateWarning, UserWarning)
     assert issubclass(exceptions.FileSuffixWarning, UserWarning)
     assert issubclass(exceptions.PipelineChangedWarning, UserWarning)

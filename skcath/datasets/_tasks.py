@@ -339,8 +339,8 @@ def run_task(rig, controller, task):
     Parameters
     ----------
     rig : SimulatedCatheter
-        The rig (any object with ``reset()``, ``step(command)`` and
-        ``tip_``, and ``rate_hz``).
+        The rig (or any object with its ``reset()``, ``step(command)``,
+        ``tip_``, ``t_``, ``rate_hz`` and ``n_motors``).
     controller : object
         With ``start(sweep)`` and ``step(target, obs)``.
     task : Task
