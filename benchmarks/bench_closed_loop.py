@@ -19,11 +19,15 @@ factory called with the fitted pipeline of ``backbone``):
   angles of the sweep sample whose tracked tip is nearest the target (no
   model, no hysteresis compensation);
 - with ``skcath.control`` installed, its controllers on pipelines of a
-  backbone (PCC or PDL with the play, ``hysteresis="play"``) and
-  ``NoResidual``, fitted on ``make_benchmark(mechanism=...)`` of the same
-  mechanism: the feedforward inverse of each backbone, the feedback on the
-  PDL estimate, and the feedback on the tracker (the rig's tracker on: the
-  bound of what an estimate can give). Without it they are skipped.
+  backbone and ``NoResidual``, fitted on ``make_benchmark(mechanism=...)``
+  of the same mechanism: ``PCC inverse, open loop`` and ``PDL inverse, open
+  loop`` (``FeedforwardController`` of the backbone alone, no play),
+  ``skcath feedforward`` (``FeedforwardController`` of PDL with the play,
+  ``hysteresis="play"``), ``skcath closed loop (estimate)``
+  (``FeedbackController`` on the streamed estimate of that pipeline) and
+  ``closed on the tracker`` (``FeedbackController(close_on="tracker")``, the
+  rig's tracker on: the bound of what an estimate can give), all with a rate
+  limit of 60 deg/s and ``latency=1``. Without it they are skipped.
 
 The script also times the rig itself: ``SimulatedCatheter.reset`` and
 ``step`` with the tracker off and on (wall time, and the process's CPU time,
@@ -78,18 +82,26 @@ except ImportError:
     CONTROL_MISSING = True
 else:
     CONTROL_MISSING = False
+    _LIMITS = {"rate_limit": 60.0}  # deg/s; latency=1 (the default) is the rig's timing
     CONTROLLERS.update({
-        "feedforward PCC": ("pcc", False, control.FeedforwardController),
-        "feedforward PDL": ("pdl", False, control.FeedforwardController),
-        "feedback PDL (estimate)": ("pdl", False, control.FeedbackController),
-        "feedback PDL (tracker)": (
-            "pdl", True, lambda p: control.FeedbackController(p, close_on="tracker")
+        "PCC inverse, open loop": ("pcc", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "PDL inverse, open loop": ("pdl", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "skcath feedforward": ("pdl-play", False, lambda p: control.FeedforwardController(p, **_LIMITS)),
+        "skcath closed loop (estimate)": (
+            "pdl-play", False, lambda p: control.FeedbackController(p, **_LIMITS)
+        ),
+        "closed on the tracker": (
+            "pdl-play", True, lambda p: control.FeedbackController(p, close_on="tracker", **_LIMITS)
         ),
     })
 
 
 def fit_pipelines(mechanism, backbones, quick):
-    """Pipelines of each backbone with the play and NoResidual, fitted on the benchmark of ``mechanism``."""
+    """Pipelines of each backbone and NoResidual, fitted on the benchmark of ``mechanism``.
+
+    ``"pcc"`` and ``"pdl"`` are the backbones alone; ``"pdl-play"`` is PDL
+    with the play identified on the sweep (``hysteresis="play"``).
+    """
     from skcath.backbones import PCCBackbone, PDLBackbone
     from skcath.residuals import NoResidual
 
@@ -97,7 +109,8 @@ def fit_pipelines(mechanism, backbones, quick):
     data = make_benchmark(mechanism=mechanism, **size)
     out = {}
     for name in backbones:
-        backbone = {"pcc": PCCBackbone, "pdl": PDLBackbone}[name](hysteresis="play").fit(data.X)
+        Backbone = PCCBackbone if name == "pcc" else PDLBackbone
+        backbone = Backbone(hysteresis="play" if name.endswith("-play") else None).fit(data.X)
         residual = NoResidual().fit(backbone.transform(data.X), data.y)
         out[name] = Pipeline([("backbone", backbone), ("residual", residual)])
     return out

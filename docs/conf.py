@@ -70,6 +70,7 @@ sphinx_gallery_conf = {
             "../examples/residuals",
             "../examples/model_selection",
             "../examples/online",
+            "../examples/control",
         ]
     ),
     "within_subsection_order": "FileNameSortKey",

@@ -1,0 +1,388 @@
+"""Controllers that turn a fitted tip model into motor commands: feedforward and resolved-rate feedback."""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from numbers import Integral, Real
+
+import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError
+from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
+
+from .. import _format as fmt
+from ..online import OnlineEstimator
+from ..online._estimator import _check_sweep
+from ._hysteresis import hysteresis_inverse
+from ._limits import MotorLimits, UnreachableTargetWarning, check_target, rate_limited, read_obs
+from ._model import ModelInverse, damped_solve
+
+__all__ = ["FeedbackController", "FeedforwardController"]
+
+
+def _limits_box(motor_limits, q_sweep):
+    """Bounds (low, high) of every motor (deg): given, or the sweep's range."""
+    n = q_sweep.shape[1]
+    if motor_limits is None:
+        return q_sweep.min(axis=0), q_sweep.max(axis=0)
+    box = np.asarray(motor_limits, dtype=float)
+    if box.shape == (2,):
+        box = np.tile(box, (n, 1))
+    if box.shape != (n, 2) or not np.all(np.isfinite(box)) or np.any(box[:, 0] >= box[:, 1]):
+        raise ValueError(
+            f"motor_limits must be (low, high) in deg, or one such row per motor (shape ({n}, 2)), "
+            f"finite with low < high; got {np.asarray(motor_limits).tolist()}."
+        )
+    return box[:, 0], box[:, 1]
+
+
+#: Points per motor of the grid of commands whose backbone tips seed the inverse, by motor count.
+GRID_POINTS = {1: 61, 2: 25, 3: 11}
+#: How much closer (mm^2, squared distance) a grid tip must be to restart the inverse from it.
+GRID_MARGIN_MM = 0.25
+
+
+def _seed_grid(est, limits):
+    """Effective angles on a grid over the motor limits (deg) and the backbone's tips there (mm)."""
+    n = len(est.q_neutral_)
+    axes = [np.linspace(lo, hi, GRID_POINTS[min(n, 3)]) for lo, hi in zip(limits.low, limits.high)]
+    z = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
+    z = z[[limits.contains(row) for row in z]]
+    tips = np.array([est._backbone(*row) for row in z.tolist()], dtype=float).reshape(-1, 3)
+    return z, tips
+
+
+class _Controller(BaseEstimator):
+    """What the controllers share: start on a sweep, read a sample, aim, issue a command within limits."""
+
+    _parameter_constraints: dict = {
+        "pipeline": [HasMethods(["predict"])],
+        "motor_limits": ["array-like", None],
+        "rate_limit": [Interval(Real, 0, None, closed="neither"), None],
+        "reach_tol_mm": [Interval(Real, 0, None, closed="left")],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "damping": [Interval(Real, 0, None, closed="left")],
+        "latency": [Interval(Integral, 0, None, closed="left")],
+        "engine": [StrOptions({"auto", "numba", "numpy"})],
+    }
+
+    def start(self, sweep):
+        """Calibrate the model on the run's sweep, as :meth:`OnlineEstimator.start` does.
+
+        Parameters
+        ----------
+        sweep : pandas.DataFrame
+            The sweep rows (``phase == "sweep"``) of the run, with the tracked tip.
+
+        Returns
+        -------
+        self
+            Ready for :meth:`step`; the first command moves from the last sweep sample.
+        """
+        self._validate_params()
+        X, _ = _check_sweep(sweep)
+        est = OnlineEstimator(self.pipeline, engine=self.engine).start(X)
+        n = len(est.q_neutral_)
+        q = X[list(est.channels_[:n])].to_numpy(dtype=float)
+        low, high = _limits_box(self.motor_limits, q)
+        self.limits_ = MotorLimits(low, high, est.q_neutral_, est.q_limit_)
+        t = X[fmt.TIME].to_numpy(dtype=float)
+        self.dt_ = float(np.median(np.diff(t))) if len(t) > 1 else 0.1
+        self.estimator_ = est
+        self.inverse_ = hysteresis_inverse(est)
+        self.model_ = ModelInverse(est, self.limits_.project, eps_deg=1e-3, limits=self.limits_)
+        self._grid_z, self._grid_tips = _seed_grid(est, self.limits_)
+        self.command_ = self.limits_.project(q[-1])
+        self._z_solution = self.command_.copy()
+        self._torques = tuple(float(v) for v in est._last_sweep[n:])
+        self.aimed_ = self.estimate_ = None
+        self.n_unreachable_ = 0
+        self._limited = False
+        self._issued = deque([self.command_.copy()] * self.latency, maxlen=max(self.latency, 1))
+        self._reset_feedback()
+        return self
+
+    def _reset_feedback(self):
+        """Feedback state set by :meth:`start`; none for the feedforward."""
+
+    def _check_started(self):
+        if not hasattr(self, "estimator_"):
+            raise NotFittedError(
+                f"This {type(self).__name__} has not been started; call start(sweep) with the "
+                "sweep rows of the run before step."
+            )
+
+    def _observe(self, obs, need_tracker=False):
+        """Step the model with the measured sample; the estimate (mm) and the tracker's tip or None.
+
+        Then the model is advanced, on a copy of its state, by the commands
+        still pending (``latency``), with the sample's torques.
+        """
+        sample, t, tip = read_obs(obs, self.estimator_.channels_, need_tracker)
+        est = self.estimator_
+        self.estimate_ = est.step(*sample, t=t).copy()
+        n = len(est.q_neutral_)
+        self._torques = sample[n:]
+        pending = list(self._issued)[-self.latency:] if self.latency else []
+        self._effective = np.array(pending[-1] if pending else sample[:n], dtype=float)
+        self.model_.begin([(*q.tolist(), *self._torques) for q in pending])
+        if est.play_width_ > 0.0:  # the played angles after the pending commands
+            self._effective = np.array(est.play_state_)
+        return self.estimate_, tip
+
+    def _effective_state(self):
+        """Effective angles (deg) the next command moves from: played, or commanded without a play."""
+        return self._effective
+
+    def _solve(self, target, z0):
+        return self.model_.solve(target, z0, self._torques, max_iter=self.max_iter, tol_deg=1e-3,
+                                 damping=self.damping)
+
+    def _aim(self, target):
+        """Solve the model for ``target``: effective angles, the nearest model tip and its Jacobian.
+
+        From the previous solution; again from the nearest backbone tip of the
+        seed grid when one of those lies closer to the target than the tip
+        found (a local minimum, e.g. in a dead zone of the backbone).
+        """
+        z, tip, J = self._solve(target, self._z_solution)
+        miss2 = float(np.sum((target - tip) ** 2))
+        if miss2 > GRID_MARGIN_MM:  # else no grid tip can be closer by the margin
+            d2 = np.sum((self._grid_tips - target) ** 2, axis=1)
+            best = int(np.argmin(d2))
+            if d2[best] + GRID_MARGIN_MM < miss2:
+                z2, tip2, J2 = self._solve(target, self._grid_z[best])
+                if np.sum((target - tip2) ** 2) < miss2:
+                    z, tip, J = z2, tip2, J2
+        self._z_solution = z
+        miss = float(np.linalg.norm(target - tip))
+        if miss > self.reach_tol_mm:
+            self.n_unreachable_ += 1
+            warnings.warn(
+                f"target {np.round(target, 2).tolist()} mm lies {miss:.1f} mm from the nearest tip the "
+                f"model reaches within the motor limits ({np.round(tip, 2).tolist()} mm), more than "
+                f"reach_tol_mm={self.reach_tol_mm}; steering to that tip.",
+                UnreachableTargetWarning, stacklevel=3,
+            )
+        self.aimed_ = tip
+        return z, tip, J
+
+    def _issue(self, z_wanted):
+        """The command (deg) for the wanted effective angles: inverted hysteresis, motor and rate limits."""
+        q = self.inverse_.command(self.limits_.project(z_wanted), self._effective_state(), self.command_)
+        q_limited = self.limits_.project(q)
+        limited = not np.array_equal(q_limited, q)
+        if self.rate_limit is not None:
+            q_limited, slowed = rate_limited(q_limited, self.command_, self.rate_limit * self.dt_)
+            limited = limited or slowed
+        self._limited = limited
+        self.command_ = q_limited
+        self._issued.append(q_limited)
+        return q_limited.copy()
+
+
+_COMMON_PARAMETERS = """
+    pipeline : sklearn.pipeline.Pipeline
+        Fitted pipeline of a backbone and, optionally, a residual, as
+        :class:`~skcath.online.OnlineEstimator` takes it. Read, never modified.
+        A pipeline of a PCC or PDL backbone alone gives the backbone's inverse.
+    motor_limits : array-like of shape (2,) or (n_motors, 2), default=None
+        Lowest and highest motor angle (deg), for every motor or one row per
+        motor. None: the range of each motor angle over the sweep. Commands
+        are also kept within the motor angles the estimator accepts (the
+        sweep's amplitude around the neutral angles, plus its ``q_margin``).
+    rate_limit : float or None, default=None
+        Largest motor speed (deg/s): no command differs from the previous
+        one by more than ``rate_limit * dt_`` on any motor, ``dt_`` being the
+        sweep's median sample interval. None: no rate limit.
+    reach_tol_mm : float, default=2.0
+        A target whose nearest reachable model tip is farther than this (mm)
+        warns with :class:`UnreachableTargetWarning`; the controller steers to
+        that nearest tip (``aimed_``) either way.
+    max_iter : int, default=8
+        Most Gauss-Newton steps of the model's inverse per sample.
+    damping : float, default=0.05
+        Damping of the least-squares steps (mm/deg).
+    latency : int, default=1
+        Commands issued whose samples the observations do not show yet: the
+        model is advanced by these (with the last torques) before it is
+        inverted, and feedback compares the estimate with the tip aimed at
+        ``latency + 1`` steps before. 1 for
+        :class:`~skcath.datasets.SimulatedCatheter`, whose record of a sample
+        is complete only once the next command is known; 0 where the
+        observation is the sample that the previous command produced.
+    engine : {"auto", "numba", "numpy"}, default="auto"
+        Engine of the model's step (:class:`~skcath.online.OnlineEstimator`).
+"""
+
+_COMMON_ATTRIBUTES = """
+    estimator_ : OnlineEstimator
+        The started estimator, stepped with every observation.
+    limits_ : MotorLimits
+        The motor limits in force.
+    dt_ : float
+        Sample interval the rate limit applies to (s).
+    command_ : ndarray of shape (n_motors,)
+        Last command (deg); after :meth:`start`, the last sweep sample's angles.
+    estimate_ : ndarray of shape (3,)
+        The model's tip estimate for the last observation (mm).
+    aimed_ : ndarray of shape (3,)
+        The model tip nearest the last target (mm): the target itself when reachable.
+    n_unreachable_ : int
+        Targets farther than ``reach_tol_mm`` from every reachable model tip.
+"""
+
+_STEP_DOC = """Motor command for the next sample.
+
+        Parameters
+        ----------
+        target : array-like of shape (3,)
+            Wanted tip (mm, base frame); finite.
+        obs : mapping, pandas.Series or sequence of float
+            The sample just measured: ``q1 .. qN`` (deg), ``tau1 .. tauN``
+            when the recordings have torques, optionally ``t`` (s), and the
+            tracker's ``x, y, z`` (mm) when closing on the tracker. A sequence
+            holds the channels in the order of ``estimator_.channels_``
+            (then ``x, y, z``): the fast path.
+
+        Returns
+        -------
+        command : ndarray of shape (n_motors,)
+            Motor angles to command (deg), within the motor and rate limits.
+        """
+
+
+class FeedforwardController(_Controller):
+    __doc__ = f"""Feedforward inverse of a fitted tip model: the command whose predicted tip is the target.
+
+    At every sample the model's own streaming step, from its present state,
+    is inverted by a few Gauss-Newton steps (finite-difference Jacobian,
+    warm-started from the previous solution) for the effective motor angles
+    whose predicted tip is the target; the inverse of the hysteresis in
+    front of the backbone (for ``hysteresis="play"``: the wanted angle plus or
+    minus the play's half-width in the direction of motion) turns those into
+    the motor command, which is then kept within the motor and rate limits.
+    The measured sample only advances the model's state: the loop is open.
+
+    Parameters
+    ----------{_COMMON_PARAMETERS}
+    Attributes
+    ----------{_COMMON_ATTRIBUTES}
+    See Also
+    --------
+    FeedbackController : the same inverse, closed on the estimate or the tracker.
+    """
+
+    def __init__(self, pipeline, *, motor_limits=None, rate_limit=None, reach_tol_mm=2.0,
+                 max_iter=8, damping=0.05, latency=1, engine="auto"):
+        self.pipeline = pipeline
+        self.motor_limits = motor_limits
+        self.rate_limit = rate_limit
+        self.reach_tol_mm = reach_tol_mm
+        self.max_iter = max_iter
+        self.damping = damping
+        self.latency = latency
+        self.engine = engine
+
+    def step(self, target, obs):
+        self._check_started()
+        target = check_target(target)
+        self._observe(obs)
+        try:
+            z, _, _ = self._aim(target)
+            return self._issue(z)
+        finally:
+            self.model_.end()
+
+    step.__doc__ = _STEP_DOC
+
+
+class FeedbackController(_Controller):
+    __doc__ = f"""Resolved-rate feedback on the streamed tip estimate (or the tracker), on the model's Jacobian.
+
+    Every sample the model is solved for the target as by
+    :class:`FeedforwardController` (which also clips an unreachable target to
+    the nearest reachable model tip), and the tip error ``e`` (the aimed tip
+    minus the estimate, or minus the tracker's tip) is turned into a change
+    of the effective angles by damped least squares on the model's Jacobian,
+    ``gain * (J^T J + damping^2 I)^-1 J^T e``. With ``feedforward=True`` that
+    change accumulates into a correction added to the feedforward solution
+    (integral action; it stops accumulating while the command is held at a
+    motor or rate limit); otherwise it moves the previous wanted angles
+    (classical resolved rate). The hysteresis is inverted, and the limits
+    kept, as for the feedforward.
+
+    Parameters
+    ----------
+    close_on : {{"estimate", "tracker"}}, default="estimate"
+        Feedback on the model's estimate of the measured sample, or on the
+        tracker's tip (``x, y, z`` of the observation): the latter needs the
+        tracker and bounds what the estimate can give.
+    feedforward : bool, default=True
+        Whether the feedforward solution is the nominal command.
+    gain : float, default=0.5
+        Fraction of the least-squares correction applied per sample, in (0, 1].{_COMMON_PARAMETERS}
+    Attributes
+    ----------{_COMMON_ATTRIBUTES}    correction_ : ndarray of shape (n_motors,)
+        Accumulated correction of the effective angles (deg), with ``feedforward=True``.
+
+    See Also
+    --------
+    FeedforwardController : the open-loop inverse.
+    """
+
+    _parameter_constraints: dict = {
+        **_Controller._parameter_constraints,
+        "close_on": [StrOptions({"estimate", "tracker"})],
+        "feedforward": ["boolean"],
+        "gain": [Interval(Real, 0, 1, closed="right")],
+    }
+
+    def __init__(self, pipeline, *, close_on="estimate", feedforward=True, gain=0.5, motor_limits=None,
+                 rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05, latency=1,
+                 engine="auto"):
+        self.pipeline = pipeline
+        self.close_on = close_on
+        self.feedforward = feedforward
+        self.gain = gain
+        self.motor_limits = motor_limits
+        self.rate_limit = rate_limit
+        self.reach_tol_mm = reach_tol_mm
+        self.max_iter = max_iter
+        self.damping = damping
+        self.latency = latency
+        self.engine = engine
+
+    def _reset_feedback(self):
+        self.correction_ = np.zeros_like(self.command_)
+        self._z_wanted = self.command_.copy()
+        self._aims = deque([None] * (self.latency + 1), maxlen=self.latency + 1)
+
+    def step(self, target, obs):
+        self._check_started()
+        target = check_target(target)
+        aimed_before = self._aims[0]  # the aim of the command the observation shows
+        estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
+        try:
+            return self._feedback(target, aimed_before, estimate if tip is None else tip)
+        finally:
+            self.model_.end()
+
+    step.__doc__ = _STEP_DOC
+
+    def _feedback(self, target, aimed_before, measured):
+        """The command from the model's solution and the error of the aim the observation shows."""
+        z_ff, aimed, J = self._aim(target)
+        self._aims.append(aimed)
+        if self.feedforward:
+            if aimed_before is not None and not self._limited:
+                self.correction_ = self.correction_ + self.gain * damped_solve(
+                    J, aimed_before - measured, self.damping)
+            # no more correction than the limits leave room for
+            self.correction_ = self.limits_.project(z_ff + self.correction_) - z_ff
+            self._z_wanted = z_ff + self.correction_
+        else:
+            step = self.gain * damped_solve(J, aimed - measured, self.damping)
+            self._z_wanted = self.limits_.project(self._z_wanted + step)
+        return self._issue(self._z_wanted)

@@ -1,0 +1,305 @@
+"""Tests of the controllers of ``skcath.control``.
+
+Open loop: the feedforward command for the model's own predicted tips
+recovers the motor path that produced them (for a backbone with and without
+the play in front). Closed loop: a plant made of a fitted model (another
+calibration than the controller's, so that the controller's model is wrong)
+is driven to reachable targets by the feedback controllers, on the tracker
+and, where the plant is the controller's own model, on the estimate. Then
+the limits (motor and rate limits never exceeded, unreachable targets
+clipped with a warning) and the bad inputs.
+"""
+
+import importlib.util
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from sklearn.exceptions import NotFittedError
+from sklearn.pipeline import Pipeline
+from sklearn.utils._param_validation import InvalidParameterError
+
+from skcath.backbones import PCCBackbone, PDLBackbone, play_kernel
+from skcath.control import FeedbackController, FeedforwardController, UnreachableTargetWarning
+from skcath.control._hysteresis import IdentityInverse, PlayInverse
+from skcath.datasets import simulate_run
+from skcath.online import OnlineEstimator
+from skcath.residuals import NoResidual
+
+CHANNELS = ["q1", "q2", "tau1", "tau2"]
+N_MOTION = 150
+
+
+@pytest.fixture(scope="module")
+def runs():
+    """A training run (setting S02) and a test run (S05), the latter's motion cut short."""
+    train = simulate_run(setting="S02", random_state=1)
+    test = simulate_run(setting="S05", random_state=2).X
+    sweep = test[test["phase"] == "sweep"]
+    motion = test[test["phase"] == "motion"].iloc[:N_MOTION]
+    return train.X, np.asarray(train.y), sweep, motion
+
+
+@pytest.fixture(scope="module")
+def pipes(runs):
+    """Fitted pipelines of a backbone and NoResidual, keyed by (backbone class, hysteresis)."""
+    X, y, _, _ = runs
+    cache = {}
+
+    def get(Backbone, hysteresis=None):
+        if (Backbone, hysteresis) not in cache:
+            backbone = Backbone(hysteresis=hysteresis).fit(X)
+            residual = NoResidual().fit(backbone.transform(X), y)
+            cache[Backbone, hysteresis] = Pipeline([("backbone", backbone), ("residual", residual)])
+        return cache[Backbone, hysteresis]
+
+    return get
+
+
+class ModelPlant:
+    """A plant whose tip is a fitted model's streaming estimate at the commanded angles.
+
+    Its motors follow the command exactly; the torques are the last sweep
+    sample's. ``offset`` (mm) is added to the tip it reports and stores.
+    """
+
+    def __init__(self, pipe, sweep, offset=(0.0, 0.0, 0.0)):
+        self.est = OnlineEstimator(pipe).start(sweep)
+        last = sweep[CHANNELS].to_numpy()[-1]
+        self.torques = tuple(last[2:])
+        self.offset = np.asarray(offset, dtype=float)
+        x, y, z = sweep[["ref_x", "ref_y", "ref_z"]].to_numpy()[-1]
+        self.obs = {"q1": last[0], "q2": last[1], "tau1": last[2], "tau2": last[3], "x": x, "y": y, "z": z}
+        self.tip = None
+
+    def step(self, command):
+        self.tip = self.est.step(*command, *self.torques) + self.offset
+        self.obs = {"q1": command[0], "q2": command[1], "tau1": self.torques[0],
+                    "tau2": self.torques[1], "x": self.tip[0], "y": self.tip[1], "z": self.tip[2]}
+        return self.obs
+
+
+def _drive(controller, plant, targets):
+    """Tips (mm) and commands (deg) of the plant under ``controller``, one target per sample."""
+    tips, commands = [], []
+    for target in targets:
+        command = controller.step(target, plant.obs)
+        commands.append(command)
+        plant.step(command)
+        tips.append(plant.tip.copy())
+    return np.array(tips), np.array(commands)
+
+
+def _model_tips(pipe, sweep, motion):
+    est = OnlineEstimator(pipe).start(sweep)
+    return np.array([est.step(*s).copy() for s in motion[CHANNELS].to_numpy()])
+
+
+@pytest.mark.parametrize("Backbone", [PCCBackbone, PDLBackbone])
+@pytest.mark.parametrize("hysteresis", [None, "play"])
+def test_feedforward_recovers_the_motor_path_of_the_model_tips(runs, pipes, Backbone, hysteresis):
+    _, _, sweep, motion = runs
+    pipe = pipes(Backbone, hysteresis)
+    targets = _model_tips(pipe, sweep, motion)
+    controller = FeedforwardController(pipe, latency=0).start(sweep)
+    plant = ModelPlant(pipe, sweep)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnreachableTargetWarning)
+        tips, commands = _drive(controller, plant, targets)
+    error = np.linalg.norm(tips - targets, axis=1)
+    # the tip of the next sample is the model's own: the inverse puts it on the target
+    assert np.median(error) < 1e-3
+    # the PDL backbone has flat regions (its dead zone) where the inverse stops a little short
+    assert np.quantile(error, 0.95) < (0.05 if Backbone is PCCBackbone else 0.5)
+    if Backbone is PCCBackbone and hysteresis is None:  # a one-to-one map: the path itself
+        assert np.max(np.abs(commands - motion[["q1", "q2"]].to_numpy())) < 0.05
+
+
+def test_play_inverse_commands_the_wanted_played_angle():
+    rng = np.random.default_rng(0)
+    inverse, width = PlayInverse(4.0), 4.0
+    z, q = np.zeros(2), np.zeros(2)
+    for wanted in rng.uniform(-30, 30, size=(50, 2)):
+        q = inverse.command(wanted, z, q)
+        z = np.array([play_kernel(zi, qi, width) for zi, qi in zip(z, q)])
+        np.testing.assert_allclose(z, wanted, atol=1e-12)
+    # a played angle already where it is wanted keeps the command within the play
+    q_before = q.copy()
+    assert np.array_equal(inverse.command(z, z, q_before), q_before)
+    assert np.array_equal(IdentityInverse().command(z, None, None), z)
+
+
+def test_play_inverse_beats_the_backbone_inverse_on_a_played_plant(runs, pipes):
+    """Against a plant with a play, the inverse with the play tracks better than without."""
+    _, _, sweep, motion = runs
+    plant_pipe = pipes(PCCBackbone, "play")
+    targets = _model_tips(plant_pipe, sweep, motion)
+    errors = {}
+    for hysteresis in (None, "play"):
+        controller = FeedforwardController(pipes(PCCBackbone, hysteresis), latency=0).start(sweep)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnreachableTargetWarning)
+            tips, _ = _drive(controller, ModelPlant(plant_pipe, sweep), targets)
+        errors[hysteresis] = np.sqrt(np.mean(np.sum((tips - targets) ** 2, axis=1)))
+    assert errors["play"] < 0.5 * errors[None]
+
+
+@pytest.mark.parametrize("close_on", ["estimate", "tracker"])
+@pytest.mark.parametrize("feedforward", [True, False])
+def test_feedback_reaches_a_held_target(runs, pipes, close_on, feedforward):
+    """Closed on the tracker, the loop removes an error of the model; on the estimate, it reaches the model's target."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone)
+    target = _model_tips(pipe, sweep, motion)[80]
+    offset = (1.5, -1.0, 0.0) if close_on == "tracker" else (0.0, 0.0, 0.0)
+    # a plant whose tip is off the model's by an offset mostly across the tip's surface
+    plant = ModelPlant(pipe, sweep, offset=offset)
+    controller = FeedbackController(pipe, close_on=close_on, feedforward=feedforward, gain=0.5,
+                                    latency=0).start(sweep)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnreachableTargetWarning)
+        tips, _ = _drive(controller, plant, [target] * 60)
+    feedforward_only = FeedforwardController(pipe, latency=0).start(sweep)
+    ff_tips, _ = _drive(feedforward_only, ModelPlant(pipe, sweep, offset=offset), [target] * 60)
+    final = np.linalg.norm(tips[-5:] - target, axis=1).max()
+    if close_on == "tracker":
+        # the offset's part across the surface is removed; the feedforward keeps it
+        assert final < 0.5 * np.linalg.norm(ff_tips[-1] - target)
+    else:
+        assert final < 0.05
+
+
+@pytest.mark.parametrize("Controller", [FeedforwardController, FeedbackController])
+def test_rate_limit_is_never_exceeded(runs, pipes, Controller):
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    far = _model_tips(pipe, sweep, motion)[[20, 140]]
+    targets = np.repeat(far, 15, axis=0)[np.r_[0:15, 15:30, 0:15]]
+    rate = 20.0
+    controller = Controller(pipe, rate_limit=rate, latency=0).start(sweep)
+    previous = controller.command_.copy()
+    _, commands = _drive(controller, ModelPlant(pipe, sweep), targets)
+    steps = np.abs(np.diff(np.vstack([previous, commands]), axis=0))
+    assert controller.dt_ == pytest.approx(0.1)
+    assert steps.max() <= rate * controller.dt_ + 1e-9
+    assert steps.max() > 0.9 * rate * controller.dt_  # the targets are far apart: the limit binds
+
+
+@pytest.mark.parametrize("Controller", [FeedforwardController, FeedbackController])
+def test_unreachable_target_is_clipped_with_a_warning(runs, pipes, Controller):
+    _, _, sweep, _ = runs
+    pipe = pipes(PCCBackbone)
+    limits = [[-20.0, 20.0], [-30.0, 10.0]]
+    controller = Controller(pipe, motor_limits=limits, latency=0).start(sweep)
+    plant = ModelPlant(pipe, sweep)
+    target = np.array([80.0, 80.0, 0.0])
+    given = target.copy()
+    with pytest.warns(UnreachableTargetWarning, match="reach_tol_mm"):
+        command = controller.step(target, plant.obs)
+    assert np.array_equal(target, given)
+    assert np.all(command >= [-20.0, -30.0]) and np.all(command <= [20.0, 10.0])
+    assert controller.n_unreachable_ == 1
+    # the aimed tip is the model's tip nearest the target over the limit box
+    est = OnlineEstimator(pipe).start(sweep)
+    grid = np.stack(np.meshgrid(np.linspace(-20, 20, 41), np.linspace(-30, 10, 41)), -1).reshape(-1, 2)
+    nearest = min(np.linalg.norm(np.array(est._backbone(*g)) - target) for g in grid)
+    assert np.linalg.norm(controller.aimed_ - target) <= nearest + 1e-6
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnreachableTargetWarning)
+        for _ in range(30):
+            command = controller.step(target, plant.step(command))
+            assert np.all(command >= [-20.0, -30.0]) and np.all(command <= [20.0, 10.0])
+
+
+def test_steps_accept_series_dicts_and_sequences_alike(runs, pipes):
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone)
+    target = _model_tips(pipe, sweep, motion)[30]
+    rows = motion[CHANNELS + ["t"]].iloc[:5]
+    outs = []
+    for form in ("series", "dict", "tuple"):
+        controller = FeedbackController(pipe).start(sweep)
+        got = []
+        for _, row in rows.iterrows():
+            obs = {"series": row, "dict": row.to_dict(), "tuple": tuple(row[CHANNELS])}[form]
+            got.append(controller.step(target, obs))
+        outs.append(np.array(got))
+    np.testing.assert_allclose(outs[0], outs[1])
+    np.testing.assert_allclose(outs[0], outs[2])
+
+
+def test_bad_inputs_raise_naming_them(runs, pipes):
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone)
+    controller = FeedbackController(pipe, close_on="tracker")
+    with pytest.raises(NotFittedError, match="start"):
+        controller.step([0, 0, 50], {})
+    controller.start(sweep)
+    obs = {"q1": 1.0, "q2": 2.0, "tau1": 0.0, "tau2": 0.0, "t": 100.0, "x": 1.0, "y": 2.0, "z": 50.0}
+    with pytest.raises(ValueError, match="target must be finite"):
+        controller.step([0.0, np.nan, 50.0], obs)
+    with pytest.raises(ValueError, match=r"target must have shape \(3,\)"):
+        controller.step([0.0, 50.0], obs)
+    with pytest.raises(ValueError, match="non-finite value.*q2"):
+        controller.step([0.0, 0.0, 50.0], {**obs, "q2": np.nan})
+    with pytest.raises(ValueError, match="non-finite value.*y"):
+        controller.step([0.0, 0.0, 50.0], {**obs, "y": np.nan})
+    with pytest.raises(ValueError, match="tracker.*x, y, z"):
+        controller.step([0.0, 0.0, 50.0], {k: v for k, v in obs.items() if k not in "xyz"})
+    with pytest.raises(ValueError, match="lacks the channel.*tau2"):
+        controller.step([0.0, 0.0, 50.0], {k: v for k, v in obs.items() if k != "tau2"})
+    with pytest.raises(ValueError, match="motor_limits"):
+        FeedforwardController(pipe, motor_limits=[10.0, -10.0]).start(sweep)
+    with pytest.raises(InvalidParameterError, match="rate_limit"):
+        FeedforwardController(pipe, rate_limit=-1.0).start(sweep)
+    with pytest.raises(InvalidParameterError, match="close_on"):
+        FeedbackController(pipe, close_on="camera").start(sweep)
+    with pytest.raises(ValueError, match="exactly one run|phase"):
+        FeedforwardController(pipe).start(pd.concat([sweep, motion]))
+
+
+class DelayedPlant(ModelPlant):
+    """A :class:`ModelPlant` whose record of a sample comes one command later, as the simulated rig's."""
+
+    def __init__(self, pipe, sweep):
+        super().__init__(pipe, sweep)
+        self.pending = (self.obs, None)
+
+    def step(self, command):
+        obs, tip = self.pending
+        super().step(command)
+        self.pending = (self.obs, self.tip.copy())
+        self.obs, self.tip = obs, tip
+        return obs
+
+
+def test_latency_counts_the_commands_not_yet_observed(runs, pipes):
+    """On a plant that shows a sample one command late, latency=1 puts the commanded tip on the target."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    targets = _model_tips(pipe, sweep, motion)
+    controller = FeedforwardController(pipe, latency=1).start(sweep)
+    plant = DelayedPlant(pipe, sweep)
+    commands = []
+    for target in targets:
+        commands.append(controller.step(target, plant.obs))
+        plant.step(commands[-1])
+    # the tips of the commanded samples, each after the one commanded before it
+    est = OnlineEstimator(pipe).start(sweep)
+    torques = sweep[["tau1", "tau2"]].to_numpy()[-1]
+    tips = np.array([est.step(*c, *torques).copy() for c in commands])
+    assert np.quantile(np.linalg.norm(tips - targets, axis=1), 0.95) < 0.05
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="the numba engine needs numba")
+def test_compiled_inverse_gives_the_commands_of_the_numpy_one(runs, pipes):
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")  # one command per tip: no dead zone to pick among equal commands
+    targets = _model_tips(pipe, sweep, motion)
+    commands = {}
+    for engine in ("numpy", "numba"):
+        controller = FeedbackController(pipe, engine=engine, latency=0).start(sweep)
+        assert (controller.model_._compiled is not None) == (engine == "numba")
+        commands[engine] = _drive(controller, ModelPlant(pipe, sweep), targets)[1]
+    np.testing.assert_allclose(commands["numba"], commands["numpy"], atol=1e-6)
