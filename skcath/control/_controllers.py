@@ -13,7 +13,7 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
 
 from .. import _format as fmt
 from ..online import OnlineEstimator
-from ..online._estimator import _check_sweep
+from ..online._sweep import check_sweep
 from ._hysteresis import hysteresis_inverse
 from ._limits import MotorLimits, UnreachableTargetWarning, check_target, rate_limited, read_obs
 from ._model import ModelInverse, damped_solve
@@ -81,7 +81,7 @@ class _Controller(BaseEstimator):
             Ready for :meth:`step`; the first command moves from the last sweep sample.
         """
         self._validate_params()
-        X, _ = _check_sweep(sweep)
+        X = check_sweep(sweep).X
         est = OnlineEstimator(self.pipeline, engine=self.engine).start(X)
         n = len(est.q_neutral_)
         q = X[list(est.channels_[:n])].to_numpy(dtype=float)
