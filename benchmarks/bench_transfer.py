@@ -58,7 +58,8 @@ backbones alone.
 
 Schedule: ``QUICK`` (hidden size 64, windows every 200 steps, 4 pretraining
 epochs at learning rate 1e-2, 3 fine-tuning epochs at 3e-3, four groups of
-settings per catheter) with one seed (``--seed``), restricted to the two
+settings per catheter) with one seed (``--seed``; ``--seeds`` for several,
+each run's error averaged over them), restricted to the two
 learned methods. ``--quick-check`` runs everything end to end on a small
 part of the data (the first run of S00-S04 of every catheter, hidden size
 8, one epoch per stage) and checks the adapted input against
@@ -241,12 +242,13 @@ def pretrain_on_subsets(inputs, y, X, folds, schedule, args, name, clock):
                 out = pretrain_models(inputs[ident.backbone], y, train, schedule, variants=[ident.variant],
                                       predict=[ident.variant], n_jobs=args.n_jobs)
                 model_s += sum(t["seconds"] for t in out.timings)
-                pred = np.full((len(X), 3), np.nan)
-                for (_, _, c), values in out.predictions.items():
-                    pred[test[c]] = values
-                for fold in train:
-                    records += run_scores(y, pred, X, fold.test, benchmark=name, method=loco_name(ident),
-                                          k=k, training="+".join(dict(group)[fold.catheter]))
+                preds = {}
+                for (_, seed, c), values in out.predictions.items():
+                    preds.setdefault(seed, np.full((len(X), 3), np.nan))[test[c]] = values
+                for seed, pred in preds.items():
+                    for fold in train:
+                        records += run_scores(y, pred, X, fold.test, benchmark=name, method=loco_name(ident),
+                                              k=k, training="+".join(dict(group)[fold.catheter]), seed=seed)
                 if k == len(catheters) - 1:
                     models[ident.learned] = out.models
         clock.part(name, f"pretraining on {k} catheter(s)", start, model_s)
@@ -257,13 +259,15 @@ def finetune_within(inputs, y, X, folds, schedule, models, args, name, clock):
     """Within-catheter scores of the learned methods fine-tuned from the k = n - 1 models."""
     start, model_s, records = time.perf_counter(), 0.0, []
     k = X["catheter"].nunique() - 1
-    for ident in args.identifications:
-        pred, timings = within_predictions(inputs[ident.backbone], y, folds, schedule, models[ident.learned],
+    for ident, seed in itertools.product(args.identifications, schedule.seeds):
+        pretrained = {key: model for key, model in models[ident.learned].items() if key[1] == seed}
+        pred, timings = within_predictions(inputs[ident.backbone], y, folds,
+                                           dataclasses.replace(schedule, seeds=(seed,)), pretrained,
                                            ident.variant, args.n_jobs)
         model_s += sum(t["seconds"] for t in timings)
         for fold in folds.loco:
             records += run_scores(y, pred, X, fold.test, benchmark=name, method=ident.learned, k=k,
-                                  training="within")
+                                  training="within", seed=seed)
     clock.part(name, "fine-tuning within the catheter", start, model_s)
     return records
 
@@ -355,7 +359,7 @@ def add_ratios(table, identifications, ks, k_max):
 
 
 def mean_per_run(runs):
-    """A run scored by several models of one method and ``k`` (every set of ``k`` catheters) counts once."""
+    """A run scored by several models of one method and ``k`` (sets of ``k`` catheters, seeds) counts once."""
     per_run = runs.groupby(["benchmark", "method", "k", "run", "catheter"], sort=False)["rmse_mm"].mean()
     return per_run.reset_index()
 
@@ -422,7 +426,7 @@ def parse_args(argv=None):
     parser.add_argument("--ks", nargs="+", type=int, default=None,
                         help="numbers of training catheters (default: 1 .. n - 1)")
     parser.add_argument("--schedule", choices=("quick", "full"), default="quick",
-                        help="the protocol's schedule, with one seed (default: quick)")
+                        help="the protocol's schedule, with the seeds of --seed (default: quick)")
     parser.add_argument("--max-epochs", type=int, default=None,
                         help="pretraining epochs instead of the schedule's (default: the schedule's)")
     parser.add_argument("--no-within", dest="within", action="store_false",
@@ -432,7 +436,8 @@ def parse_args(argv=None):
     parser.add_argument("--subsets", choices=("cyclic", "all"), default="all",
                         help="training catheters with k < n - 1: the k that follow the held-out one "
                              "in cyclic order, or every set of k (default: all)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the learned models (default: 0)")
+    parser.add_argument("--seed", "--seeds", dest="seeds", type=int, nargs="+", default=[0],
+                        help="seeds of the learned models; each run's error is averaged over them (default: 0)")
     parser.add_argument("--n-jobs", type=int, default=2,
                         help="models trained in parallel, runs calibrated in parallel (default: 2)")
     parser.add_argument("--tuning-catheter", default="C1",
@@ -452,7 +457,7 @@ def parse_args(argv=None):
     if not args.identifications:
         parser.error("--hysteresis: none of the identifications asked for is available")
     learned = tuple(dict.fromkeys(i.variant for i in args.identifications))
-    schedule = dataclasses.replace(QUICK if args.schedule == "quick" else FULL, seeds=(args.seed,),
+    schedule = dataclasses.replace(QUICK if args.schedule == "quick" else FULL, seeds=tuple(args.seeds),
                                    variants=learned)
     if args.max_epochs is not None:
         schedule = dataclasses.replace(
@@ -493,7 +498,7 @@ def main(argv=None):
     args.output_dir.mkdir(parents=True, exist_ok=True)
     epochs = args.schedule.pretrain_params["max_epochs"]
     print_table(f"Mean per-run RMSE over motion rows of the bent settings (mm), schedule "
-                f"{args.schedule.name} ({epochs} pretraining epochs), seed {args.seed}; ratios below",
+                f"{args.schedule.name} ({epochs} pretraining epochs), seeds {args.seeds}; ratios below",
                 table, args.goal)
     print_table("The same per held-out catheter (its mechanism in brackets)", by_catheter, args.goal)
     if args.subsets == "all" and not args.backbones_only:
@@ -514,7 +519,7 @@ def main(argv=None):
     runs.to_csv(args.output_dir / "transfer_runs.csv", index=False)
     timings.to_csv(args.output_dir / "timings.csv", index=False)
     print(f"\nwritten: {args.output_dir}/transfer.csv, transfer_catheters.csv, transfer_runs.csv, "
-          "play_widths.csv, timings.csv")
+          + ("play_widths.csv, " if len(widths) else "") + "timings.csv")
 
 
 if __name__ == "__main__":
