@@ -497,8 +497,9 @@ def main(argv=None):
     clock.part("all", "total", start)
     args.output_dir.mkdir(parents=True, exist_ok=True)
     epochs = args.schedule.pretrain_params["max_epochs"]
-    print_table(f"Mean per-run RMSE over motion rows of the bent settings (mm), schedule "
-                f"{args.schedule.name} ({epochs} pretraining epochs), seeds {args.seeds}; ratios below",
+    learning = ("backbones alone" if args.backbones_only else
+                f"schedule {args.schedule.name} ({epochs} pretraining epochs), seeds {args.seeds}")
+    print_table(f"Mean per-run RMSE over motion rows of the bent settings (mm), {learning}; ratios below",
                 table, args.goal)
     print_table("The same per held-out catheter (its mechanism in brackets)", by_catheter, args.goal)
     if args.subsets == "all" and not args.backbones_only:
