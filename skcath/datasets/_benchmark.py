@@ -16,6 +16,7 @@ from sklearn.utils._param_validation import Interval, StrOptions, validate_param
 from ._cache import SUFFIX, as_json_value, read_bunch, read_key, write_bunch
 from ._catheter import UNIT_SPREAD, Catheter, sample_catheter, shaft_settings
 from ._hysteresis import MECHANISMS
+from ._mixed import MIXED, simulate_mixed, unit_mechanisms
 from ._sensors import DistortionField
 from ._tendons import MotorCount, tendon_layout
 from ._simulator import (
@@ -196,7 +197,7 @@ def _benchmark_field(random_state=0):
     {
         "n_catheters": [_Count(1)],
         "n_runs": [_Count(1)],
-        "mechanism": [StrOptions(set(MECHANISMS))],
+        "mechanism": [StrOptions({*MECHANISMS, MIXED}), list, tuple],
         "random_state": [_Count(0)],
         "shaft_change": ["boolean"],
         "resweep": ["boolean"],
@@ -247,10 +248,16 @@ def make_benchmark(
         ``catheters`` is given.
     n_runs : int, default=3
         Repeats per shaft setting.
-    mechanism : {"play", "bouc_wen", "dahl_creep"}, default="play"
+    mechanism : {"play", "bouc_wen", "dahl_creep", "mixed"} or sequence of str, default="play"
         Hysteresis mechanism of the tendon transmission: load-dependent play
         (Coulomb friction and elastic tendon), asymmetric Bouc-Wen, or
-        rate-dependent Dahl friction with tendon creep.
+        rate-dependent Dahl friction with tendon creep. ``"mixed"``: units
+        that differ in kind, unit ``Ck`` with the mechanism
+        ``MECHANISMS[(k - 1) % 3]`` (C1 play, C2 bouc_wen, C3 dahl_creep, C4
+        play, ...); a list or tuple names the mechanism of every unit, in
+        order (one per unit). Each unit's runs are those of its mechanism
+        (``docs/simulated_benchmark.rst``, *Units that differ in kind*).
+        Cached separately when the units' mechanisms differ.
     random_state : int, default=0
         Seed of everything random. Same seed, same data.
     shaft_change : bool, default=False
@@ -354,7 +361,11 @@ def make_benchmark(
             the noise-free tip over motion rows, averaged over runs with
             equal weights. No estimator can be expected to go below it.
         mechanism : str
-            The hysteresis mechanism used.
+            The hysteresis mechanism used; ``"mixed"`` when the units'
+            mechanisms differ.
+        mechanisms : dict
+            With ``"mixed"`` only: the mechanism of each unit, by name;
+            ``runs`` then has the column ``mechanism``.
         DESCR : str
             A short description of the data set.
 
@@ -382,10 +393,14 @@ def make_benchmark(
             benchmark_catheter(k, random_state, unit_spread=unit_spread, n_motors=n_motors)
             for k in range(1, int(n_catheters) + 1)
         ]
+    mechanisms = unit_mechanisms(mechanism, [_unit_number(c) for c in catheters])
+    if mechanisms is None and not isinstance(mechanism, str):
+        mechanism = mechanism[0]  # the same mechanism for every unit: that benchmark
     key = _cache_key(
-        len(catheters), int(n_runs), mechanism, int(random_state), shaft_change,
+        len(catheters), int(n_runs), MIXED if mechanisms else mechanism, int(random_state), shaft_change,
         resweep=resweep, unit_spread=unit_spread, run_variation=run_variation,
         catheters=catheters if given else None, rate_hz=float(rate_hz), n_motors=n_motors,
+        mechanisms=mechanisms,
     )
     path = _cache_path(key, data_home) if cache else None
     bunch = None if path is None else _load_cached(path, key)
@@ -396,10 +411,12 @@ def make_benchmark(
     specs = benchmark_specs(
         catheters, int(n_runs), int(random_state), bool(shaft_change), bool(resweep)
     )
-    bunch = simulate_runs(
-        specs, mechanism=mechanism, field=_benchmark_field(int(random_state)),
-        run_variation=run_variation, rate_hz=float(rate_hz),
-    )
+    simulation = {"field": _benchmark_field(int(random_state)), "run_variation": run_variation,
+                  "rate_hz": float(rate_hz)}
+    if mechanisms is None:
+        bunch = simulate_runs(specs, mechanism=mechanism, **simulation)
+    else:
+        bunch = simulate_mixed(specs, mechanisms, [c.name for c in catheters], **simulation)
     # as the cache gives them back: plain floats and lists
     bunch.catheters = as_json_value({c.name: c.to_dict() for c in catheters})
     bunch.key = key
@@ -437,7 +454,7 @@ def _check_catheters(catheters, n_motors=2):
 
 def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
                resweep=False, unit_spread, run_variation, catheters, rate_hz=RATE_HZ,
-               n_motors=2):
+               n_motors=2, mechanisms=None):
     """What identifies a generated benchmark; the default benchmark keeps its first key."""
     key = {
         "version": SIMULATOR_VERSION,
@@ -460,6 +477,8 @@ def _cache_key(n_catheters, n_runs, mechanism, random_state, shaft_change, *,
         key["rate_hz"] = float(rate_hz)
     if n_motors != 2:
         key["n_motors"] = int(n_motors)
+    if mechanisms is not None:
+        key["mechanisms"] = list(mechanisms)
     return as_json_value(key)
 
 
@@ -510,6 +529,13 @@ _INSTRUMENTS = {
 _WALKERS = {1: "the motor", 2: "both motors", 3: "the three motors"}
 
 
+def _mechanism_text(bunch):
+    """The mechanism, or that of every unit (``C1 play, C2 bouc_wen, ...``)."""
+    if "mechanisms" not in bunch:
+        return bunch.mechanism
+    return ", ".join(f"{name} {m}" for name, m in bunch.mechanisms.items())
+
+
 def _describe(bunch, n_catheters, n_runs, rate_hz=RATE_HZ, n_motors=2):
     runs = bunch.runs
     rays = tendon_layout(n_motors).sweep_rays
@@ -517,7 +543,7 @@ def _describe(bunch, n_catheters, n_runs, rate_hz=RATE_HZ, n_motors=2):
         "skcath simulated catheter benchmark\n"
         + _INSTRUMENTS[n_motors]
         + f"{n_catheters} catheters x 17 shaft settings x {n_runs} runs = {len(runs)} runs, "
-        f"{len(bunch.X)} samples at {rate_hz:g} Hz; hysteresis mechanism: {bunch.mechanism}.\n"
+        f"{len(bunch.X)} samples at {rate_hz:g} Hz; hysteresis mechanism: {_mechanism_text(bunch)}.\n"
         f"Each run: {rays}-ray outward-and-return sweep, then a 100-step random walk of "
         f"{_WALKERS[n_motors]}.\n"
         + (
