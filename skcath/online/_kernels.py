@@ -45,6 +45,7 @@ from ._layout import (
     BACKBONE_PDL,
     BACKBONE_POLYNOMIAL,
     F_CLIP,
+    F_LIMIT2,
     F_NOMINAL,
     F_PLAY_WIDTH,
     GRU_CAND,
@@ -68,6 +69,7 @@ from ._layout import (
     M_N_GRU,
     M_N_HEAD,
     M_N_MOTORS,
+    M_NEUTRAL,
     M_N_SCRATCH,
     M_PLAY,
     M_RESIDUAL,
@@ -229,6 +231,18 @@ def _blend_compiled(h, z, n, tmp):
         h[i] = n[i] + z[i] * (h[i] - n[i])
 
 
+def _accepted_compiled(meta, f, sample):
+    for k in range(meta[M_N_CHANNELS]):
+        if not math.isfinite(sample[k]):
+            return False
+    at = meta[M_NEUTRAL]
+    total = 0.0
+    for j in range(meta[M_N_MOTORS]):
+        d = sample[j] - f[at + j]
+        total += d * d
+    return total <= f[F_LIMIT2]
+
+
 def _tanh_inplace_compiled(y, t, bits):
     n = y.shape[0]
     for i in range(n):
@@ -316,6 +330,28 @@ def tanh_inplace(y, t, bits):
     np.tanh(y, y)
 
 
+@compiled_as(_accepted_compiled)
+def accepted(meta, f, sample):
+    """Whether ``step`` takes the sample: every channel finite, the motor angles in range.
+
+    In range: the squared distance of the motor angles from the neutral
+    angles (``meta[M_NEUTRAL]``), summed motor by motor, is at most
+    ``f[F_LIMIT2]``. Python reads the neutral angles and the limit from
+    ``meta.neutral`` and ``meta.limit2``, set by the numpy engine, and tests
+    the channels with their sum, which is not finite where a channel is not
+    (nor where finite channels overflow it: a sample then refused is
+    accepted on the caller's second look).
+    """
+    total = sum(sample)
+    if not total - total == 0.0:
+        return False
+    total = 0.0
+    for v, neutral in zip(sample, meta.neutral):
+        d = v - neutral
+        total += d * d
+    return total <= meta.limit2
+
+
 # ---------------------------------------------------------------------------
 # the step
 # ---------------------------------------------------------------------------
@@ -377,8 +413,8 @@ def _nominal_tip(meta, f, theta):
     return polynomial_kernel(theta, f[at : at + meta[M_N_MOTORS]])
 
 
-def step(meta, f, theta, w, w32, buf, out, sample):
-    """One whole step: the tip (mm, base frame) for an accepted sample, into ``out``.
+def step(meta, f, theta, w, w32, buf, out, sample, check):
+    """One whole step: the tip (mm, base frame) for a sample, into ``out``.
 
     Parameters
     ----------
@@ -392,7 +428,18 @@ def step(meta, f, theta, w, w32, buf, out, sample):
         them. The backbone reads the angles played (a half-width of 0
         leaves them as they are, and the play is skipped); the step features
         read them as they are.
+    check : bool
+        Whether to check the sample first (:func:`accepted`): a sample that
+        fails changes nothing (neither ``out`` nor the state of the run).
+        Without the check the sample must be one that passes.
+
+    Returns
+    -------
+    stepped : bool
+        False where the check refused the sample, else True.
     """
+    if check and not accepted(meta, f, sample):
+        return False
     n = meta[M_N_MOTORS]
     last = meta[M_LAST]
     angles = meta[M_ANGLES]
@@ -429,7 +476,7 @@ def step(meta, f, theta, w, w32, buf, out, sample):
         out[0] = bx
         out[1] = by
         out[2] = bz
-        return
+        return True
     if kind == RESIDUAL_GRU:
         _gru(meta, f, w, w32, buf)
     _head(meta, f, w, w32, buf)
@@ -438,6 +485,7 @@ def step(meta, f, theta, w, w32, buf, out, sample):
     out[0] = min(max(float(buf[e]), -c), c) + bx
     out[1] = min(max(float(buf[e + 1]), -c), c) + by
     out[2] = min(max(float(buf[e + 2]), -c), c) + bz
+    return True
 
 
 class BackboneStep:
