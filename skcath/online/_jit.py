@@ -5,7 +5,8 @@ implementations of its vector primitives (:mod:`skcath._kernel`), on the
 packed arrays of the run in flat storage
 (:class:`~skcath.online._layout.FlatStore`): one call from Python per step,
 no array allocated. Numbers differ from the numpy engine's by rounding only:
-the order of the additions inside a matrix-vector product, and the
+the order of the additions inside a matrix-vector product (each product
+added with one rounding, a fused multiply-add), and the
 nonlinearities, which compiled code evaluates in float64 whatever the
 network's dtype.
 
@@ -58,6 +59,7 @@ class JitStep(PackedStep):
 
     engine = "numba"
     store = FlatStore
+    fused = True
 
     def _merge(self):
         # two float arrays in place of four: fewer arguments for numba to convert at each step

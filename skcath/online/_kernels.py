@@ -30,7 +30,7 @@ import math
 import numpy as np
 from scipy.special import expit
 
-from .._kernel import compiled_as, kernel
+from .._kernel import compiled_as, fma, kernel
 from ..backbones import (
     PCCParams,
     PDLParams,
@@ -61,6 +61,7 @@ from ._layout import (
     M_ANGLES,
     M_BACKBONE,
     M_CAND,
+    M_FUSED,
     M_GATES,
     M_HEADER,
     M_HIDDEN,
@@ -103,6 +104,23 @@ _EXP_TAYLOR = tuple(1.0 / math.factorial(j) for j in range(14))
 # compiled loops
 # ---------------------------------------------------------------------------
 @kernel
+def _matrix(w, at, rows, cols, y, accumulate):
+    """The column-major matrix (rows, cols) at ``w[at:]``, a (cols, rows) view.
+
+    Zeroes ``y`` first unless ``accumulate``.
+    """
+    if not accumulate:
+        y[:] = 0
+    return w[at : at + rows * cols].reshape((cols, rows))
+
+
+@kernel
+def _eight(x, j):
+    """``x[j] .. x[j + 7]``: the inputs of a pass over eight columns."""
+    return x[j], x[j + 1], x[j + 2], x[j + 3], x[j + 4], x[j + 5], x[j + 6], x[j + 7]
+
+
+@kernel
 def _matvec(w, at, rows, cols, x, y, accumulate):
     """``y (+)= M @ x`` for the column-major ``M`` (rows, cols) at ``w[at:]``.
 
@@ -111,13 +129,10 @@ def _matvec(w, at, rows, cols, x, y, accumulate):
     be float32 while ``x`` and ``y`` are float64: the products are then
     float64.
     """
-    M = w[at : at + rows * cols].reshape((cols, rows))
-    if not accumulate:
-        y[:] = 0
+    M = _matrix(w, at, rows, cols, y, accumulate)
     j = 0
     while j + 8 <= cols:
-        v0, v1, v2, v3 = x[j], x[j + 1], x[j + 2], x[j + 3]
-        v4, v5, v6, v7 = x[j + 4], x[j + 5], x[j + 6], x[j + 7]
+        v0, v1, v2, v3, v4, v5, v6, v7 = _eight(x, j)
         for i in range(rows):
             y[i] += (((M[j, i] * v0 + M[j + 1, i] * v1) + (M[j + 2, i] * v2 + M[j + 3, i] * v3))
                      + ((M[j + 4, i] * v4 + M[j + 5, i] * v5)
@@ -136,9 +151,38 @@ def _matvec(w, at, rows, cols, x, y, accumulate):
 
 
 @kernel
-def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate):
-    """:func:`_matvec` of a block stored in ``w32`` (``in_w32``) or ``w``."""
-    if in_w32:
+def _matvec_fused(w, at, rows, cols, x, y, accumulate):
+    """:func:`_matvec` with fused multiply-adds (:func:`~skcath._kernel.fma`), column after column.
+
+    Each product is added to ``y[i]`` with one rounding: half the
+    arithmetic of :func:`_matvec`, which rounds every product and sum.
+    Eight (then one) columns per pass over ``y``.
+    """
+    M = _matrix(w, at, rows, cols, y, accumulate)
+    j = 0
+    while j + 8 <= cols:
+        v0, v1, v2, v3, v4, v5, v6, v7 = _eight(x, j)
+        for i in range(rows):
+            a = fma(M[j + 3, i], v3, fma(M[j + 2, i], v2, fma(M[j + 1, i], v1,
+                                                               fma(M[j, i], v0, y[i]))))
+            y[i] = fma(M[j + 7, i], v7, fma(M[j + 6, i], v6, fma(M[j + 5, i], v5,
+                                                                  fma(M[j + 4, i], v4, a))))
+        j += 8
+    while j < cols:
+        v0 = x[j]
+        for i in range(rows):
+            y[i] = fma(M[j, i], v0, y[i])
+        j += 1
+
+
+@kernel
+def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate, fused):
+    """:func:`_matvec` (:func:`_matvec_fused` if ``fused``) of a block in ``w32`` or ``w``."""
+    if fused and in_w32:
+        _matvec_fused(w32, at, rows, cols, x, y, accumulate)
+    elif fused:
+        _matvec_fused(w, at, rows, cols, x, y, accumulate)
+    elif in_w32:
         _matvec(w32, at, rows, cols, x, y, accumulate)
     else:
         _matvec(w, at, rows, cols, x, y, accumulate)
@@ -185,10 +229,12 @@ def _scratch_compiled(meta, f):
 
 def _matvec_compiled(meta, r, w, w32, x, y):
     rows, cols, split = meta[r + MAT_ROWS], meta[r + MAT_COLS], meta[r + MAT_SPLIT]
-    _block(meta[r + MAT_A_W32], meta[r + MAT_A_AT], w, w32, rows, split, x[:split], y, False)
+    fused = meta[M_FUSED]
+    _block(meta[r + MAT_A_W32], meta[r + MAT_A_AT], w, w32, rows, split, x[:split], y, False,
+           fused)
     if split < cols:
         _block(meta[r + MAT_B_W32], meta[r + MAT_B_AT], w, w32, rows, cols - split, x[split:], y,
-               True)
+               True, fused)
 
 
 def _gru_vectors_sliced(meta, buf, rec):

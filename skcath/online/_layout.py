@@ -50,10 +50,10 @@ RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
 # last sample, of the play's state, of the backbone's angles, of the scratch and
 # of the neutral motor angles; the size of f and of buf (where an engine that
 # stores them together, :class:`~skcath.online._jit.JitStep`, puts theta after f
-# and w after buf)
+# and w after buf); whether the compiled matrix products fuse their multiply-adds
 (M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
  M_N_HEAD, M_RESULT, M_N_SCRATCH, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
- M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_HEADER) = offsets(*(1,) * 21)
+ M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_FUSED, M_HEADER) = offsets(*(1,) * 22)
 
 # matrix record: rows, columns, columns of the first block, then for each of
 # the two column blocks whether it is stored in w32 and its offset (FlatStore)
@@ -231,6 +231,7 @@ class PackedStep:
         header[M_BACKBONE] = backbone.code
         header[M_RESIDUAL] = RESIDUAL_NONE
         header[M_USE_TORQUE] = bool(use_torque)
+        header[M_FUSED] = self.fused
         n_motors = backbone.n_motors
         n_channels = 2 * n_motors if n_channels is None else int(n_channels)
         header[M_N_MOTORS], header[M_N_CHANNELS] = n_motors, n_channels
@@ -268,6 +269,10 @@ class PackedStep:
         self.play = self.f[header[M_PLAY] : header[M_PLAY] + n_motors]
         self.play[:] = self._play_start
         self.call = self._bind()
+
+    #: Whether the matrix products fuse their multiply-adds (``meta[M_FUSED]``;
+    #: compiled code only).
+    fused = False
 
     def _merge(self):
         """Hook of an engine that stores ``f`` and ``theta``, ``buf`` and ``w`` together (none)."""
@@ -311,7 +316,7 @@ class PackedStep:
         return records
 
     def __call__(self, *sample_and_out):
-        """Step with an accepted sample, ``step(*sample, out)``; the tip (mm) is written into ``out``."""
+        """Step with an accepted sample, ``step(*sample, out)``: the tip (mm) into ``out``."""
         *sample, out = sample_and_out
         self.call(out, tuple(sample), False)
 
