@@ -29,6 +29,10 @@ Variants, all with the backbone included (the same calibration of the run):
   ``skcath.online.export(pipe, path, "onnx")``, run by an onnxruntime CPU
   session with one thread, fed the same features (if onnxruntime is
   installed);
+- ``onnxruntime whole step (float64)``: the whole step of the started float64
+  estimator, backbone and play included, written by
+  ``skcath.online.export(est, path)`` and run by an onnxruntime CPU session
+  with one thread, the sample given and the state fed back;
 - ``online, MLP`` and ``online, backbone only``: the same loop for
   ``MLPResidual`` (default sizes) and ``NoResidual``, for scale, with each
   engine.
@@ -61,10 +65,24 @@ The table also gives the largest difference to ``pipe.predict`` on the run
 (mm): float32 ``predict`` as fitted, and float64 ``predict`` (a copy of the
 pipeline with ``module_.double()``).
 
+Two checkouts back to back (``--compare-to PATH``): each runs the numba
+rows, plain torch and the whole step in onnxruntime (where its skcath can
+export it) in a process of its own, with ``PYTHONPATH`` set to the checkout
+(this script from this checkout; the pipelines fitted by each checkout's own
+code, with the same data and seeds). The two processes take turns, one round
+of 1,000 steps of every variant at a time, the first to go alternating. The
+table gives each checkout's p50 over all its steps, their ratio, the ratio
+of the quietest rounds (the least p50 of a round, for a loaded machine) and
+each p50 over the plain torch p50 of the same checkout. A checkout from
+before the tip kernels steps the torch loop's backbone with its own
+``_backbone``.
+
 Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_streaming.py            # 20,000 steps per variant
     .venv/bin/python benchmarks/bench_streaming.py --steps 5000
+    git worktree add /tmp/c262 c262cec
+    .venv/bin/python benchmarks/bench_streaming.py --compare-to /tmp/c262 --steps 10000
 """
 
 from __future__ import annotations
@@ -72,6 +90,7 @@ from __future__ import annotations
 import argparse
 import copy
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -90,7 +109,7 @@ from threadpoolctl import threadpool_limits
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine_lines  # noqa: E402
 
-from skcath.backbones import PDLBackbone, pdl_kernel  # noqa: E402
+from skcath.backbones import PDLBackbone  # noqa: E402
 from skcath.datasets import make_benchmark  # noqa: E402
 from skcath.online import OnlineEstimator, export, export_io  # noqa: E402
 from skcath.residuals import GRUResidual, MLPResidual, NoResidual  # noqa: E402
@@ -108,6 +127,10 @@ def _fit(residual, X, y):
 
 def _backbone(est):
     """The run's calibrated backbone as a function of one motor sample."""
+    try:
+        from skcath.backbones import pdl_kernel
+    except ImportError:  # a checkout from before the tip kernels (--compare-to)
+        return est._backbone
     theta = est.backbone_params_.pack().tolist()
     return lambda q1, q2: pdl_kernel(theta, q1, q2)
 
@@ -193,6 +216,35 @@ class OnnxLoop:
         return np.array([bx, by, bz]) + residual[0]
 
 
+class StepGraphLoop:
+    """The estimator's whole step exported (``export(est, path)``) in onnxruntime (one thread)."""
+
+    def __init__(self, est, path):
+        import onnxruntime
+
+        export(est, path)
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        self.session = onnxruntime.InferenceSession(
+            str(path), options, providers=["CPUExecutionProvider"]
+        )
+        self.size = self.session.get_inputs()[1].shape[1]
+        self.sample = np.empty((1, len(est.channels_)))
+        self.no_reset = np.array([False])
+        self.reset()
+
+    def reset(self):
+        self.feed = {"sample": self.sample, "state": np.zeros((1, self.size)),
+                     "reset": np.array([True])}
+
+    def step(self, *sample):
+        self.sample[0] = sample
+        tip, self.feed["state"], _ = self.session.run(None, self.feed)
+        self.feed["reset"] = self.no_reset
+        return tip[0]
+
+
 def _timed(step, samples, reset, start, n_steps, times):
     """Step ``n_steps`` samples from ``start`` (cycling, reset at each pass), appending ns per step.
 
@@ -272,17 +324,8 @@ def _cold_compile(pipe, sweep):
     return tuple(float(v) for v in done.stdout.split())
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=int, default=20000, help="timed steps per variant")
-    parser.add_argument("--alloc-steps", type=int, default=5000, help="steps under tracemalloc")
-    parser.add_argument("--no-cold-compile", action="store_true",
-                        help="skip timing a compilation of the numba kernel from scratch")
-    args = parser.parse_args(argv)
-    has_numba = importlib.util.find_spec("numba") is not None
-    torch.set_num_threads(1)
-    threadpool_limits(1)
-
+def _prepare(engines, full=True):
+    """Fit the pipelines, start the estimators, make the other loops; a dict of all of it."""
     data = make_benchmark(n_catheters=1, n_runs=1, random_state=0)
     X, y = data.X, np.asarray(data.y)
     t0 = time.perf_counter()
@@ -297,11 +340,6 @@ def main(argv=None):
     sweep = run[~motion]
     samples = [tuple(map(float, row)) for row in run.loc[motion, ["q1", "q2", "tau1", "tau2"]].to_numpy()]
     last_sweep = tuple(float(v) for v in sweep[["q1", "q2"]].to_numpy()[-1])
-    cold = _cold_compile(pipes["gru"], sweep) if has_numba and not args.no_cold_compile else None
-
-    engines = ["numba", "numpy"] if has_numba else ["numpy"]
-    if has_numba:
-        import numba  # here, so that start_s leaves out the import
     estimators, start_s = {}, {}
     for pipe, dtype, label in [("gru", "float64", "online float64"),
                                ("gru", "float32", "online float32"),
@@ -313,34 +351,47 @@ def main(argv=None):
             est = OnlineEstimator(pipes[pipe], dtype=dtype, engine=engine)
             estimators[name] = est.start(sweep)
             start_s[name] = time.perf_counter() - t0
-    torch_loop = TorchLoop(pipes["gru"], estimators["online float64, numpy"], last_sweep)
-    loops = {"plain torch GRUCell": torch_loop}
+    reference = estimators[f"online float64, {engines[0]}"]
+    loops = {"plain torch GRUCell": TorchLoop(pipes["gru"], reference, last_sweep)}
     tmp = tempfile.TemporaryDirectory()
     if importlib.util.find_spec("onnxruntime") is not None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # notices of torch's legacy ONNX exporter
-            loops["onnxruntime float32"] = OnnxLoop(
-                pipes["gru"], estimators["online float32, numpy"], last_sweep,
-                Path(tmp.name) / "step.onnx", "float32",
-            )
+            if full:
+                loops["onnxruntime float32"] = OnnxLoop(
+                    pipes["gru"], estimators[f"online float32, {engines[0]}"], last_sweep,
+                    Path(tmp.name) / "step.onnx", "float32",
+                )
+            if importlib.util.find_spec("skcath.online._export_step") is not None:
+                loops["onnxruntime whole step (float64)"] = StepGraphLoop(
+                    reference, Path(tmp.name) / "whole.onnx")
+    return dict(pipes=pipes, run=run, motion=motion, sweep=sweep, samples=samples,
+                estimators=estimators, start_s=start_s, loops=loops, fit_s=fit_s, tmp=tmp)
 
-    # parity on one pass of the run
+
+def _parity(prep):
+    """Largest difference (mm) to float32 and float64 ``predict`` of each variant that has one."""
+    pipes, run, motion, samples = prep["pipes"], prep["run"], prep["motion"], prep["samples"]
     pred32 = pipes["gru"].predict(run)[motion]
     pipe64 = copy.deepcopy(pipes["gru"])
     pipe64["residual"].module_.double()
     pred64 = pipe64.predict(run)[motion]
     parity = {}
-    for name in [n for n in estimators if n.startswith(("online float64", "online float32"))]:
-        est = estimators[name].reset()
-        tips = np.array([est.step(*s) for s in samples])
-        parity[name] = (np.abs(tips - pred32).max(), np.abs(tips - pred64).max())
-    for name, loop in loops.items():
+    steppers = {name: est.reset().step for name, est in prep["estimators"].items()
+                if name.startswith(("online float64", "online float32"))}
+    for name, loop in prep["loops"].items():
         loop.reset()
-        tips = np.array([loop.step(*s) for s in samples])
+        steppers[name] = loop.step
+    for name, step in steppers.items():
+        tips = np.array([step(*s) for s in samples])
         parity[name] = (np.abs(tips - pred32).max(), np.abs(tips - pred64).max())
+    return parity
 
+
+def _variants(prep):
+    """Name -> (step function, reset), the estimators stepped with ``out=``."""
     variants = {}
-    for name, est in estimators.items():
+    for name, est in prep["estimators"].items():
         buf = np.empty(3)
         est.reset()
 
@@ -348,50 +399,87 @@ def main(argv=None):
             return _s(q1, q2, t1, t2, out=_b)
 
         variants[name] = (step, est.reset)
-    for name, loop in loops.items():
+    for name, loop in prep["loops"].items():
         loop.reset()
         variants[name] = (loop.step, loop.reset)
-    times = {name: [] for name in variants}
-    cursors = {name: 0 for name in variants}
-    load_before = os.getloadavg()
-    t0 = time.perf_counter()
+    return variants
+
+
+def _run_rounds(variants, samples, n_steps, times=None, cursors=None):
+    """Step every variant ``n_steps`` times, interleaved in rounds; ns per step by name."""
+    times = {name: [] for name in variants} if times is None else times
+    cursors = {name: 0 for name in variants} if cursors is None else cursors
     done = 0
-    while done < args.steps:
-        n = min(ROUND, args.steps - done)
+    while done < n_steps:
+        n = min(ROUND, n_steps - done)
         for name, (step, reset) in variants.items():
             cursors[name] = _timed(step, samples, reset, cursors[name], n, times[name])
         done += n
-    bench_s = time.perf_counter() - t0
-    load_after = os.getloadavg()
+    return times
 
-    allocs = {}
-    for name, est in estimators.items():
-        allocs[name] = _alloc(est, samples, args.alloc_steps)
 
+def _header(args, prep, cold, load, bench_s):
     print("# Streaming estimator: latency per step (backbone included)\n")
     for line in machine_lines():
         print(f"- {line}")
     print(f"- torch {torch.__version__}, 1 torch thread, 1 BLAS thread")
-    print(f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load_before)}; "
-          f"after: {', '.join(f'{v:.2f}' for v in load_after)}")
-    print(f"- pipelines fitted in {fit_s:.1f} s; timing loop {bench_s:.1f} s; "
+    print(f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load[0])}; "
+          f"after: {', '.join(f'{v:.2f}' for v in load[1])}")
+    run, estimators, start_s = prep["run"], prep["estimators"], prep["start_s"]
+    print(f"- pipelines fitted in {prep['fit_s']:.1f} s; timing loop {bench_s:.1f} s; "
           f"{args.steps} steps per variant; run {run['run'].iloc[0]} "
-          f"({len(samples)} motion samples)")
-    if has_numba:
-        compiled = [estimators[f"online {d}, numba"].compile_seconds_ for d in ("float64", "float32")]
-        print(f"- numba {numba.__version__}; `start` of the GRU float64 / float32 estimators "
-              f"(numba engine, step compiled or loaded from numba's cache in "
-              f"{compiled[0]:.2f} s / {compiled[1]:.2f} s): "
-              f"{start_s['online float64, numba']:.2f} s / "
-              f"{start_s['online float32, numba']:.2f} s (numpy engine: "
-              f"{start_s['online float64, numpy']:.2f} s / "
-              f"{start_s['online float32, numpy']:.2f} s)")
-        if cold is not None:
-            print(f"- numba step compiled from scratch (empty cache, separate process): "
-                  f"float64 {cold[1]:.1f} s, float32 {cold[2]:.1f} s, after importing numba "
-                  f"and skcath in {cold[0]:.1f} s")
-    else:
+          f"({len(prep['samples'])} motion samples)")
+    if "online float64, numba" not in estimators:
         print("- numba is not installed: numpy engine only")
+        return
+    import numba
+
+    compiled = [estimators[f"online {d}, numba"].compile_seconds_ for d in ("float64", "float32")]
+    print(f"- numba {numba.__version__}; `start` of the GRU float64 / float32 estimators "
+          f"(numba engine, step compiled or loaded from numba's cache in "
+          f"{compiled[0]:.2f} s / {compiled[1]:.2f} s): "
+          f"{start_s['online float64, numba']:.2f} s / "
+          f"{start_s['online float32, numba']:.2f} s (numpy engine: "
+          f"{start_s['online float64, numpy']:.2f} s / "
+          f"{start_s['online float32, numpy']:.2f} s)")
+    if cold is not None:
+        print(f"- numba step compiled from scratch (empty cache, separate process): "
+              f"float64 {cold[1]:.1f} s, float32 {cold[2]:.1f} s, after importing numba "
+              f"and skcath in {cold[0]:.1f} s")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=20000, help="timed steps per variant")
+    parser.add_argument("--alloc-steps", type=int, default=5000, help="steps under tracemalloc")
+    parser.add_argument("--no-cold-compile", action="store_true",
+                        help="skip timing a compilation of the numba kernel from scratch")
+    parser.add_argument("--compare-to", metavar="PATH",
+                        help="time the numba rows of this checkout and of the checkout at PATH "
+                             "back to back, each in a process of its own, in one table")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.compare_to:
+        return compare(args.compare_to, args.steps)
+    torch.set_num_threads(1)
+    threadpool_limits(1)
+    if args.worker:
+        return _worker()
+    has_numba = importlib.util.find_spec("numba") is not None
+    prep = _prepare(["numba", "numpy"] if has_numba else ["numpy"])
+    cold = None
+    if has_numba and not args.no_cold_compile:
+        cold = _cold_compile(prep["pipes"]["gru"], prep["sweep"])
+    parity = _parity(prep)
+    variants = _variants(prep)
+    load_before = os.getloadavg()
+    t0 = time.perf_counter()
+    times = _run_rounds(variants, prep["samples"], args.steps)
+    bench_s = time.perf_counter() - t0
+    load = (load_before, os.getloadavg())
+    allocs = {name: _alloc(est, prep["samples"], args.alloc_steps)
+              for name, est in prep["estimators"].items()}
+    _header(args, prep, cold, load, bench_s)
     print()
     ref = np.percentile(times["plain torch GRUCell"], 50)
     print("| variant | p50 us | p99 us | p50 / torch p50 | bytes/step | peak B | "
@@ -409,6 +497,84 @@ def main(argv=None):
     if nrt:
         print("\nAllocations of numba's runtime per step (NUMBA_NRT_STATS=1), same loops: "
               + "; ".join(f"{name}: {v:.2f}" for name, v in nrt.items()))
+
+
+# ---------------------------------------------------------------------------
+# two checkouts back to back
+# ---------------------------------------------------------------------------
+def _worker():
+    """``--worker``: the numba rows of the skcath on ``sys.path``, timed on request.
+
+    Prints the names of its variants (one JSON line), then for every line
+    ``n`` read from stdin steps each variant ``n`` times (interleaved) and
+    prints the ns of every step by name (one JSON line).
+    """
+    prep = _prepare(["numba"], full=False)
+    variants = _variants(prep)
+    cursors = {name: 0 for name in variants}
+    print(json.dumps(list(variants)), flush=True)
+    for line in sys.stdin:
+        times = _run_rounds(variants, prep["samples"], int(line), cursors=cursors)
+        print(json.dumps(times), flush=True)
+
+
+def compare(other, n_steps):
+    """Time this checkout and the one at ``other`` back to back; print one table.
+
+    Each checkout runs :func:`_worker` in its own process (``PYTHONPATH`` set
+    to the checkout, the script itself from this checkout); the two take turns,
+    one round of ``ROUND`` steps per variant at a time, the first to go
+    alternating, so that a change of the machine's load hits both alike.
+    """
+    roots = {"this": str(Path(__file__).resolve().parents[1]), "other": str(Path(other).resolve())}
+    workers = {}
+    for label, root in roots.items():  # both fit and start at once, then take turns
+        env = dict(os.environ, PYTHONPATH=root, OMP_NUM_THREADS="1")
+        workers[label] = subprocess.Popen([sys.executable, __file__, "--worker"], cwd=root,
+                                          env=env, stdin=subprocess.PIPE,
+                                          stdout=subprocess.PIPE, text=True)
+    names = {label: json.loads(worker.stdout.readline()) for label, worker in workers.items()}
+    times = {label: {name: [] for name in names[label]} for label in roots}
+    load_before = os.getloadavg()
+    order = list(roots)
+    for k in range(0, n_steps, ROUND):
+        for label in order if k // ROUND % 2 == 0 else order[::-1]:
+            workers[label].stdin.write(f"{min(ROUND, n_steps - k)}\n")
+            workers[label].stdin.flush()
+            for name, t in json.loads(workers[label].stdout.readline()).items():
+                times[label][name].extend(t)
+    for worker in workers.values():
+        worker.stdin.close()
+        worker.wait()
+    _compare_table(roots, times, (load_before, os.getloadavg()), n_steps)
+
+
+def _compare_table(roots, times, load, n_steps):
+    print("# Streaming step: this checkout against another, back to back\n")
+    for line in machine_lines():
+        print(f"- {line}")
+    print(f"- this: {roots['this']}; other: {roots['other']}; {n_steps} steps per variant, "
+          f"rounds of {ROUND} alternating between the two processes")
+    print(f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load[0])}; "
+          f"after: {', '.join(f'{v:.2f}' for v in load[1])}\n")
+    p50 = {label: {name: np.percentile(t, 50) / 1e3 for name, t in rows.items()}
+           for label, rows in times.items()}
+    # the quietest round: the least p50 of a round of ROUND steps
+    best = {label: {name: np.median(np.reshape(t[: len(t) // ROUND * ROUND], (-1, ROUND)),
+                                    axis=1).min() / 1e3 for name, t in rows.items()}
+            for label, rows in times.items()}
+    ref = {label: rows["plain torch GRUCell"] for label, rows in p50.items()}
+    print("| variant | this p50 us | other p50 us | this / other | best round: this / other "
+          "(us) | this / torch | other / torch |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name in dict.fromkeys([*p50["this"], *p50["other"]]):
+        a, b = p50["this"].get(name), p50["other"].get(name)
+        c, d = best["this"].get(name), best["other"].get(name)
+        cells = [f"{a:.1f}" if a else "-", f"{b:.1f}" if b else "-",
+                 f"{a / b:.2f}" if a and b else "-",
+                 f"{c / d:.2f} ({c:.1f} / {d:.1f})" if c and d else "-",
+                 f"{a / ref['this']:.3f}" if a else "-", f"{b / ref['other']:.3f}" if b else "-"]
+        print(f"| {name} | {' | '.join(cells)} |")
 
 
 if __name__ == "__main__":

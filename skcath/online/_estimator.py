@@ -471,7 +471,8 @@ class OnlineEstimator(BaseEstimator):
         backbone = BackboneStep(self.backbone_params_, getattr(self, "play_width_", 0.0),
                                 getattr(self, "_play_start", None))
         n_channels = self._n_channels = len(self._channels())
-        self._packed = step_class(backbone, weights, clip, use_torque, self.dtype, n_channels)
+        self._packed = step_class(backbone, weights, clip, use_torque, self.dtype, n_channels,
+                                  self._qn, self._limit2)
         self._backbone = backbone
         self._call = self._packed.call
         self._last = self._packed.last  # updated by every step
@@ -660,7 +661,7 @@ class OnlineEstimator(BaseEstimator):
     # taken at start and the running state, and loading packs the step again
     # from those (not from the pipeline, which may have been refit since)
     # and restores the state.
-    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_", "_backbone")
+    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_", "_backbone", "_out")
 
     def __getstate__(self):
         state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
@@ -750,6 +751,7 @@ class OnlineEstimator(BaseEstimator):
     # ------------------------------------------------------------------ step
     _started = False
     _ticking = False  # stepping at the model's ticks (another rate, uneven times)
+    _out = None  # the last out array checked by step
 
     def _accept(self, sample):
         """The sample to step with after the bad-input policy (a tuple of floats)."""
@@ -838,22 +840,27 @@ class OnlineEstimator(BaseEstimator):
             sample = real_sample(sample, self._channels())  # raises: a wrong count
         if t is not None or self._ticking:
             t = self._check_time(t)
-        total = sum(sample)
-        # NaN or inf in any channel makes the sum NaN or inf, which fails the test
-        if not (total - total == 0.0 and self._distance2(sample) <= self._limit2):
-            sample = self._accept(sample)
         if out is None:
             out = np.empty(3)
-        elif not (type(out) is np.ndarray and out.shape == (3,) and out.dtype == np.float64
-                  and out.flags.writeable):
-            raise ValueError(
-                "out must be a writeable float64 array of shape (3,); got "
-                f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}."
-            )
+        elif out is not self._out or not out.flags.writeable:  # _out: the last out that passed
+            if not (type(out) is np.ndarray and out.shape == (3,) and out.dtype == np.float64
+                    and out.flags.writeable):
+                raise ValueError(
+                    "out must be a writeable float64 array of shape (3,); got "
+                    f"{type(out).__name__} {getattr(out, 'shape', '')} "
+                    f"{getattr(out, 'dtype', '')}."
+                )
+            self._out = out
         if t is None:
-            function, meta, f, theta, w, w32, buf = self._call
-            function(meta, f, theta, w, w32, buf, out, sample)
+            # the step checks the sample (finite, in range) and refuses a bad one untouched
+            if not self._call(out, sample, True):
+                sample = self._accept(sample)
+                self._call(out, sample, False)
         else:
+            total = sum(sample)
+            # NaN or inf in any channel makes the sum NaN or inf, which fails the test
+            if not (total - total == 0.0 and self._distance2(sample) <= self._limit2):
+                sample = self._accept(sample)
             self._timed_step(sample, t, out)
         self.n_steps_ += 1
         if self.detector is not None:
@@ -881,11 +888,11 @@ class OnlineEstimator(BaseEstimator):
 
     def _timed_step(self, sample, t, out):
         """:meth:`step` of a sample with its time: once per sample, or at the model's ticks."""
-        function, meta, f, theta, w, w32, buf = self._call
+        call = self._call
         rate = self.rate_hz_
         if not self._ticking:
             if abs((t - self._t_prev) * rate - 1.0) <= RATE_TOLERANCE:
-                function(meta, f, theta, w, w32, buf, out, sample)
+                call(out, sample, False)
                 self._residual_last = out - self.nominal_
                 self._t_prev = t
                 return
@@ -900,7 +907,7 @@ class OnlineEstimator(BaseEstimator):
         while tick <= reach:
             a = min(max((tick - t_prev) / (t - t_prev), 0.0), 1.0)
             at = tuple(p + a * (c - p) for p, c in zip(x_prev, sample))
-            function(meta, f, theta, w, w32, buf, out, at)
+            call(out, at, False)
             self._residual_last = out - self.nominal_
             self._tick += 1
             tick = self._tick0 + self._tick / rate

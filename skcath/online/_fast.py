@@ -10,14 +10,30 @@ The small arrays that Python indexes item by item (``meta``, the backbone's
 
 from __future__ import annotations
 
+import functools
+
 from ._kernels import BackboneStep, _gru_vectors_sliced, _head_vectors_sliced, step
-from ._layout import GRU_RECORD, HEAD_RECORD, M_HEADER, M_N_GRU, M_N_HEAD, MatrixStore, PackedStep
+from ._layout import (
+    F_LIMIT2,
+    GRU_RECORD,
+    HEAD_RECORD,
+    M_HEADER,
+    M_N_GRU,
+    M_N_HEAD,
+    M_N_MOTORS,
+    M_NEUTRAL,
+    MatrixStore,
+    PackedStep,
+)
 
 __all__ = ["BackboneStep", "NumpyStep"]
 
 
 class _Meta(list):
-    """``meta`` as Python reads it: a list of its ints, and ``views``, the vectors of every layer.
+    """``meta`` as Python reads it: a list of its ints, ``views``, the vectors of every layer.
+
+    ``neutral`` and ``limit2`` are the neutral motor angles and the squared
+    limit of :func:`~skcath.online._kernels.accepted`, as floats.
 
     ``views`` maps each GRU and head record to the views of ``buf`` that
     :func:`~skcath.online._kernels.gru_vectors` and
@@ -37,6 +53,9 @@ class NumpyStep(PackedStep):
         # lists: Python reads their items faster than an array's
         meta = _Meta(self.meta.tolist())
         meta.views = {}
+        at = meta[M_NEUTRAL]
+        meta.neutral = tuple(self.f[at : at + meta[M_N_MOTORS]].tolist())
+        meta.limit2 = float(self.f[F_LIMIT2])
         first_head = M_HEADER + GRU_RECORD * meta[M_N_GRU]
         for k in range(meta[M_N_GRU]):
             rec = M_HEADER + GRU_RECORD * k
@@ -44,4 +63,5 @@ class NumpyStep(PackedStep):
         for k in range(meta[M_N_HEAD]):
             rec = first_head + HEAD_RECORD * k
             meta.views[rec] = _head_vectors_sliced(meta, self.buf, rec)
-        return (step, meta, self.f, self.theta.tolist(), self.w, self.w32, self.buf)
+        return functools.partial(step, meta, self.f, self.theta.tolist(), self.w, self.w32,
+                                 self.buf)

@@ -5,7 +5,8 @@ implementations of its vector primitives (:mod:`skcath._kernel`), on the
 packed arrays of the run in flat storage
 (:class:`~skcath.online._layout.FlatStore`): one call from Python per step,
 no array allocated. Numbers differ from the numpy engine's by rounding only:
-the order of the additions inside a matrix-vector product, and the
+the order of the additions inside a matrix-vector product (each product
+added with one rounding, a fused multiply-add), and the
 nonlinearities, which compiled code evaluates in float64 whatever the
 network's dtype.
 
@@ -15,20 +16,34 @@ imports it and is imported only when the numba engine is selected.
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numba
 import numpy as np
 
-from .._kernel import compiled, load_numba
+from .._kernel import compiled, kernel, load_numba
 from . import _kernels
-from ._layout import FlatStore, PackedStep
+from ._layout import M_THETA, M_W, FlatStore, PackedStep
 
 __all__ = ["JitStep", "step_kernel"]
 
+kernel(_kernels.step)
+
+
+def _stored_together(meta, a64, anet, w32, out, sample, check):
+    """:func:`~skcath.online._kernels.step` on the arrays of :meth:`JitStep._merge`.
+
+    ``a64`` holds ``f`` then ``theta`` (from ``meta[M_THETA]``), ``anet``
+    ``buf`` then ``w`` (from ``meta[M_W]``).
+    """
+    nf, nb = meta[M_THETA], meta[M_W]
+    return _kernels.step(meta, a64[:nf], a64[nf:], anet[nb:], w32, anet[:nb], out, sample, check)
+
+
 load_numba()
 #: The compiled step (numba's cache: compiled once per machine and dtype).
-step_kernel = compiled(_kernels.step)
+step_kernel = compiled(_stored_together)
 if step_kernel is None:
     raise ImportError("numba's compiler is disabled (NUMBA_DISABLE_JIT is set)")
 _exp = compiled(_kernels._exp)
@@ -44,22 +59,30 @@ class JitStep(PackedStep):
 
     engine = "numba"
     store = FlatStore
+    fused = True
+
+    def _merge(self):
+        # two float arrays in place of four: fewer arguments for numba to convert at each step
+        self.a64 = np.concatenate([self.f, self.theta])
+        self.f, self.theta = self.a64[: self.f.size], self.a64[self.f.size :]
+        self.anet = np.concatenate([self.buf, self.w])
+        self.buf, self.w = self.anet[: self.buf.size], self.anet[self.buf.size :]
 
     def _bind(self):
-        arrays = (self.meta, self.f, self.theta, self.w, self.w32, self.buf)
+        arrays = (self.meta, self.a64, self.anet, self.w32)
         self.compile_seconds = _compile(arrays, self.last.size)
-        return (step_kernel, *arrays)
+        return functools.partial(step_kernel, *arrays)
 
 
 def _compile(arrays, n_channels):
     """Compile (or load from numba's cache) the kernel for these arrays; seconds taken.
 
-    The sample is a tuple of ``n_channels`` floats: one compiled step per
-    number of channels. Done when the run starts, so that the first step
+    The sample is a tuple of ``n_channels`` floats, then whether to check it:
+    one compiled step per number of channels. Done when the run starts, so that the first step
     does not pay for it.
     """
     t0 = time.perf_counter()
     sample = numba.types.UniTuple(numba.float64, n_channels)
-    sig = (*(numba.typeof(a) for a in (*arrays, np.empty(3))), sample)
+    sig = (*(numba.typeof(a) for a in (*arrays, np.empty(3))), sample, numba.boolean)
     step_kernel.compile(sig)
     return time.perf_counter() - t0

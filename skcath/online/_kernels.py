@@ -30,7 +30,7 @@ import math
 import numpy as np
 from scipy.special import expit
 
-from .._kernel import compiled_as, kernel
+from .._kernel import compiled_as, fma, kernel
 from ..backbones import (
     PCCParams,
     PDLParams,
@@ -45,6 +45,7 @@ from ._layout import (
     BACKBONE_PDL,
     BACKBONE_POLYNOMIAL,
     F_CLIP,
+    F_LIMIT2,
     F_NOMINAL,
     F_PLAY_WIDTH,
     GRU_CAND,
@@ -60,6 +61,7 @@ from ._layout import (
     M_ANGLES,
     M_BACKBONE,
     M_CAND,
+    M_FUSED,
     M_GATES,
     M_HEADER,
     M_HIDDEN,
@@ -68,6 +70,7 @@ from ._layout import (
     M_N_GRU,
     M_N_HEAD,
     M_N_MOTORS,
+    M_NEUTRAL,
     M_N_SCRATCH,
     M_PLAY,
     M_RESIDUAL,
@@ -101,6 +104,23 @@ _EXP_TAYLOR = tuple(1.0 / math.factorial(j) for j in range(14))
 # compiled loops
 # ---------------------------------------------------------------------------
 @kernel
+def _matrix(w, at, rows, cols, y, accumulate):
+    """The column-major matrix (rows, cols) at ``w[at:]``, a (cols, rows) view.
+
+    Zeroes ``y`` first unless ``accumulate``.
+    """
+    if not accumulate:
+        y[:] = 0
+    return w[at : at + rows * cols].reshape((cols, rows))
+
+
+@kernel
+def _eight(x, j):
+    """``x[j] .. x[j + 7]``: the inputs of a pass over eight columns."""
+    return x[j], x[j + 1], x[j + 2], x[j + 3], x[j + 4], x[j + 5], x[j + 6], x[j + 7]
+
+
+@kernel
 def _matvec(w, at, rows, cols, x, y, accumulate):
     """``y (+)= M @ x`` for the column-major ``M`` (rows, cols) at ``w[at:]``.
 
@@ -109,13 +129,10 @@ def _matvec(w, at, rows, cols, x, y, accumulate):
     be float32 while ``x`` and ``y`` are float64: the products are then
     float64.
     """
-    M = w[at : at + rows * cols].reshape((cols, rows))
-    if not accumulate:
-        y[:] = 0
+    M = _matrix(w, at, rows, cols, y, accumulate)
     j = 0
     while j + 8 <= cols:
-        v0, v1, v2, v3 = x[j], x[j + 1], x[j + 2], x[j + 3]
-        v4, v5, v6, v7 = x[j + 4], x[j + 5], x[j + 6], x[j + 7]
+        v0, v1, v2, v3, v4, v5, v6, v7 = _eight(x, j)
         for i in range(rows):
             y[i] += (((M[j, i] * v0 + M[j + 1, i] * v1) + (M[j + 2, i] * v2 + M[j + 3, i] * v3))
                      + ((M[j + 4, i] * v4 + M[j + 5, i] * v5)
@@ -134,9 +151,38 @@ def _matvec(w, at, rows, cols, x, y, accumulate):
 
 
 @kernel
-def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate):
-    """:func:`_matvec` of a block stored in ``w32`` (``in_w32``) or ``w``."""
-    if in_w32:
+def _matvec_fused(w, at, rows, cols, x, y, accumulate):
+    """:func:`_matvec` with fused multiply-adds (:func:`~skcath._kernel.fma`), column after column.
+
+    Each product is added to ``y[i]`` with one rounding: half the
+    arithmetic of :func:`_matvec`, which rounds every product and sum.
+    Eight (then one) columns per pass over ``y``.
+    """
+    M = _matrix(w, at, rows, cols, y, accumulate)
+    j = 0
+    while j + 8 <= cols:
+        v0, v1, v2, v3, v4, v5, v6, v7 = _eight(x, j)
+        for i in range(rows):
+            a = fma(M[j + 3, i], v3, fma(M[j + 2, i], v2, fma(M[j + 1, i], v1,
+                                                               fma(M[j, i], v0, y[i]))))
+            y[i] = fma(M[j + 7, i], v7, fma(M[j + 6, i], v6, fma(M[j + 5, i], v5,
+                                                                  fma(M[j + 4, i], v4, a))))
+        j += 8
+    while j < cols:
+        v0 = x[j]
+        for i in range(rows):
+            y[i] = fma(M[j, i], v0, y[i])
+        j += 1
+
+
+@kernel
+def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate, fused):
+    """:func:`_matvec` (:func:`_matvec_fused` if ``fused``) of a block in ``w32`` or ``w``."""
+    if fused and in_w32:
+        _matvec_fused(w32, at, rows, cols, x, y, accumulate)
+    elif fused:
+        _matvec_fused(w, at, rows, cols, x, y, accumulate)
+    elif in_w32:
         _matvec(w32, at, rows, cols, x, y, accumulate)
     else:
         _matvec(w, at, rows, cols, x, y, accumulate)
@@ -183,10 +229,12 @@ def _scratch_compiled(meta, f):
 
 def _matvec_compiled(meta, r, w, w32, x, y):
     rows, cols, split = meta[r + MAT_ROWS], meta[r + MAT_COLS], meta[r + MAT_SPLIT]
-    _block(meta[r + MAT_A_W32], meta[r + MAT_A_AT], w, w32, rows, split, x[:split], y, False)
+    fused = meta[M_FUSED]
+    _block(meta[r + MAT_A_W32], meta[r + MAT_A_AT], w, w32, rows, split, x[:split], y, False,
+           fused)
     if split < cols:
         _block(meta[r + MAT_B_W32], meta[r + MAT_B_AT], w, w32, rows, cols - split, x[split:], y,
-               True)
+               True, fused)
 
 
 def _gru_vectors_sliced(meta, buf, rec):
@@ -227,6 +275,18 @@ def _tanh_of_sum_compiled(a, r, b, t, bits, at):
 def _blend_compiled(h, z, n, tmp):
     for i in range(h.shape[0]):
         h[i] = n[i] + z[i] * (h[i] - n[i])
+
+
+def _accepted_compiled(meta, f, sample):
+    for k in range(meta[M_N_CHANNELS]):
+        if not math.isfinite(sample[k]):
+            return False
+    at = meta[M_NEUTRAL]
+    total = 0.0
+    for j in range(meta[M_N_MOTORS]):
+        d = sample[j] - f[at + j]
+        total += d * d
+    return total <= f[F_LIMIT2]
 
 
 def _tanh_inplace_compiled(y, t, bits):
@@ -316,6 +376,28 @@ def tanh_inplace(y, t, bits):
     np.tanh(y, y)
 
 
+@compiled_as(_accepted_compiled)
+def accepted(meta, f, sample):
+    """Whether ``step`` takes the sample: every channel finite, the motor angles in range.
+
+    In range: the squared distance of the motor angles from the neutral
+    angles (``meta[M_NEUTRAL]``), summed motor by motor, is at most
+    ``f[F_LIMIT2]``. Python reads the neutral angles and the limit from
+    ``meta.neutral`` and ``meta.limit2``, set by the numpy engine, and tests
+    the channels with their sum, which is not finite where a channel is not
+    (nor where finite channels overflow it: a sample then refused is
+    accepted on the caller's second look).
+    """
+    total = sum(sample)
+    if not total - total == 0.0:
+        return False
+    total = 0.0
+    for v, neutral in zip(sample, meta.neutral):
+        d = v - neutral
+        total += d * d
+    return total <= meta.limit2
+
+
 # ---------------------------------------------------------------------------
 # the step
 # ---------------------------------------------------------------------------
@@ -377,8 +459,8 @@ def _nominal_tip(meta, f, theta):
     return polynomial_kernel(theta, f[at : at + meta[M_N_MOTORS]])
 
 
-def step(meta, f, theta, w, w32, buf, out, sample):
-    """One whole step: the tip (mm, base frame) for an accepted sample, into ``out``.
+def step(meta, f, theta, w, w32, buf, out, sample, check):
+    """One whole step: the tip (mm, base frame) for a sample, into ``out``.
 
     Parameters
     ----------
@@ -392,7 +474,18 @@ def step(meta, f, theta, w, w32, buf, out, sample):
         them. The backbone reads the angles played (a half-width of 0
         leaves them as they are, and the play is skipped); the step features
         read them as they are.
+    check : bool
+        Whether to check the sample first (:func:`accepted`): a sample that
+        fails changes nothing (neither ``out`` nor the state of the run).
+        Without the check the sample must be one that passes.
+
+    Returns
+    -------
+    stepped : bool
+        False where the check refused the sample, else True.
     """
+    if check and not accepted(meta, f, sample):
+        return False
     n = meta[M_N_MOTORS]
     last = meta[M_LAST]
     angles = meta[M_ANGLES]
@@ -429,7 +522,7 @@ def step(meta, f, theta, w, w32, buf, out, sample):
         out[0] = bx
         out[1] = by
         out[2] = bz
-        return
+        return True
     if kind == RESIDUAL_GRU:
         _gru(meta, f, w, w32, buf)
     _head(meta, f, w, w32, buf)
@@ -438,6 +531,7 @@ def step(meta, f, theta, w, w32, buf, out, sample):
     out[0] = min(max(float(buf[e]), -c), c) + bx
     out[1] = min(max(float(buf[e + 1]), -c), c) + by
     out[2] = min(max(float(buf[e + 2]), -c), c) + bz
+    return True
 
 
 class BackboneStep:

@@ -8,12 +8,13 @@ from six arrays made once by :class:`PackedStep` when the run starts:
   (``HEAD_*``), each holding matrix records (``MAT_*``);
 * ``f`` (float64): the nominal tip of the last step, the clip and the
   half-width of the play operator in front of the backbone (0 without
-  hysteresis) (``F_*``); then, sized by the number of motors ``N`` at the
-  offsets ``meta[M_LAST]``, ``meta[M_PLAY]``, ``meta[M_ANGLES]``: the last
-  accepted sample ``(q1 .. qN, tau1 .. tauN)`` (``N`` values without
-  torques), the state of the play (``N``) and the motor angles the backbone
-  reads (``N``); then float64 scratch for the compiled nonlinearities at
-  ``meta[M_SCRATCH]``;
+  hysteresis) and the square of the motor range accepted (``F_*``); then,
+  sized by the number of motors ``N`` at the offsets ``meta[M_LAST]``,
+  ``meta[M_PLAY]``, ``meta[M_ANGLES]``: the last accepted sample ``(q1 ..
+  qN, tau1 .. tauN)`` (``N`` values without torques), the state of the play
+  (``N``) and the motor angles the backbone reads (``N``); then float64
+  scratch for the compiled nonlinearities at ``meta[M_SCRATCH]`` and the
+  neutral motor angles (``N``) at ``meta[M_NEUTRAL]``;
 * ``theta`` (float64): the backbone's packed parameters
   (:meth:`~skcath.backbones.PCCParams.pack`,
   :meth:`~skcath.backbones.PDLParams.pack`,
@@ -46,10 +47,13 @@ RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
 # vector (H), head layers, the offset in buf of the residual (3), the length n
 # of the float64 scratch of f (then n int64 of scratch); the number of motors
 # N, the channels of a sample (N, or 2N with torques), the offsets in f of the
-# last sample, of the play's state, of the backbone's angles and of the scratch
+# last sample, of the play's state, of the backbone's angles, of the scratch and
+# of the neutral motor angles; the size of f and of buf (where an engine that
+# stores them together, :class:`~skcath.online._jit.JitStep`, puts theta after f
+# and w after buf); whether the compiled matrix products fuse their multiply-adds
 (M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
  M_N_HEAD, M_RESULT, M_N_SCRATCH, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
- M_SCRATCH, M_HEADER) = offsets(1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1)
+ M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_FUSED, M_HEADER) = offsets(*(1,) * 22)
 
 # matrix record: rows, columns, columns of the first block, then for each of
 # the two column blocks whether it is stored in w32 and its offset (FlatStore)
@@ -66,9 +70,11 @@ GRU_N_IN, GRU_VECTOR, GRU_GATES, GRU_CAND, GRU_RECORD = offsets(1, 1, MAT_RECORD
 # tanh follows, the matrix [b, W]
 HEAD_SRC, HEAD_DST, HEAD_TANH, HEAD_MATRIX, HEAD_RECORD = offsets(1, 1, 1, MAT_RECORD)
 
-# f: nominal tip of the last step (3), clip (1), half-width of the play (1, deg);
-# the regions sized by the motors follow from F_MOTORS (offsets in meta)
-F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_MOTORS = offsets(3, 1, 1)
+# f: nominal tip of the last step (3), clip (1), half-width of the play (1, deg),
+# the square of the largest distance of accepted motor angles from the neutral
+# angles (1, deg^2); the regions sized by the motors follow from F_MOTORS
+# (offsets in meta)
+F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_LIMIT2, F_MOTORS = offsets(3, 1, 1, 1)
 
 
 class _Arena:
@@ -167,7 +173,9 @@ class PackedStep:
     """The arrays of one run's step, laid out as this module names them.
 
     An engine's subclass sets ``engine`` (its name), ``store`` (:class:`FlatStore`
-    or :class:`MatrixStore`) and ``_bind``, which returns :attr:`call`.
+    or :class:`MatrixStore`) and ``_bind``, which returns :attr:`call`, and may
+    set ``_merge``, which stores the arrays together and makes ``f``, ``theta``,
+    ``w`` and ``buf`` views.
 
     Parameters
     ----------
@@ -187,15 +195,21 @@ class PackedStep:
     n_channels : int, default=None
         Channels of a sample: ``N`` motor angles, then ``N`` torques when the
         recordings have them; None means ``2N``.
+    neutral : tuple of float, default=None
+        Neutral motor angles (deg); None means zeros.
+    limit2 : float, default=inf
+        Square of the largest distance of accepted motor angles from
+        ``neutral`` (deg^2): a step that checks its sample refuses one farther
+        away, or with a channel that is not finite.
 
     Attributes
     ----------
     meta, f, theta, w, w32, buf : arrays
         As described in the module's docstring.
-    call : tuple
-        ``(function, meta, f, theta, w, w32, buf)`` in the engine's form: the
-        step is ``function(meta, f, theta, w, w32, buf, out, sample)``, with
-        ``sample`` a tuple of ``n_channels`` floats.
+    call : callable
+        The step on these arrays in the engine's form, ``call(out, sample,
+        check)``: :func:`~skcath.online._kernels.step` with ``sample`` a tuple
+        of ``n_channels`` floats.
     hidden : list of ndarray
         The GRU layers' hidden states (views of ``buf``).
     nominal : ndarray of shape (3,)
@@ -208,7 +222,8 @@ class PackedStep:
         Time taken to compile the step (s).
     """
 
-    def __init__(self, backbone, weights, clip, use_torque, dtype="float64", n_channels=None):
+    def __init__(self, backbone, weights, clip, use_torque, dtype="float64", n_channels=None,
+                 neutral=None, limit2=np.inf):
         self.dtype = np.dtype(np.float64 if weights is None else dtype)
         store = self.store(self.dtype)
         vectors = _Arena(self.dtype)
@@ -216,6 +231,7 @@ class PackedStep:
         header[M_BACKBONE] = backbone.code
         header[M_RESIDUAL] = RESIDUAL_NONE
         header[M_USE_TORQUE] = bool(use_torque)
+        header[M_FUSED] = self.fused
         n_motors = backbone.n_motors
         n_channels = 2 * n_motors if n_channels is None else int(n_channels)
         header[M_N_MOTORS], header[M_N_CHANNELS] = n_motors, n_channels
@@ -233,20 +249,33 @@ class PackedStep:
             header[M_N_HEAD] = len(head) // HEAD_RECORD
             n_scratch = max(3 * int(header[M_HIDDEN]), *(W.shape[0] for W, _ in weights.head))
         header[M_N_SCRATCH] = n_scratch
+        header[M_NEUTRAL] = header[M_SCRATCH] + 2 * n_scratch
+        header[M_THETA] = header[M_NEUTRAL] + n_motors
         self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
-        self.f = np.zeros(header[M_SCRATCH] + 2 * n_scratch)
+        self.f = np.zeros(header[M_THETA])
+        self.f[header[M_NEUTRAL] :] = 0.0 if neutral is None else neutral
+        self.f[F_LIMIT2] = limit2
         self.f[F_CLIP] = clip
         self.f[F_PLAY_WIDTH] = backbone.play_width
         self._play_start = backbone.play_start
         self.theta = backbone.theta
         self.w, self.w32 = store.arrays()
         self.buf = vectors.array()
+        self.meta[M_W] = self.buf.size
+        self._merge()
         self.hidden = [self.buf[at : at + n] for at, n in hidden]
         self.nominal = self.f[F_NOMINAL : F_NOMINAL + 3]
         self.last = self.f[header[M_LAST] : header[M_LAST] + n_channels]
         self.play = self.f[header[M_PLAY] : header[M_PLAY] + n_motors]
         self.play[:] = self._play_start
         self.call = self._bind()
+
+    #: Whether the matrix products fuse their multiply-adds (``meta[M_FUSED]``;
+    #: compiled code only).
+    fused = False
+
+    def _merge(self):
+        """Hook of an engine that stores ``f`` and ``theta``, ``buf`` and ``w`` together (none)."""
 
     @staticmethod
     def _matrix(M, split, store):
@@ -287,15 +316,9 @@ class PackedStep:
         return records
 
     def __call__(self, *sample_and_out):
-        """Step with an accepted sample, ``step(*sample, out)``; the tip (mm) is written into ``out``.
-
-        ``call`` is ``(function, meta, f, theta, w, w32, buf)``, set by the
-        engine: the step is ``function(meta, f, theta, w, w32, buf, out,
-        sample)``, ``sample`` the tuple of the sample's floats.
-        """
-        function, *arrays = self.call
+        """Step with an accepted sample, ``step(*sample, out)``: the tip (mm) into ``out``."""
         *sample, out = sample_and_out
-        function(*arrays, out, tuple(sample))
+        self.call(out, tuple(sample), False)
 
     def reset(self, last_sample):
         """Zero hidden state; ``last_sample`` becomes the previous sample.
