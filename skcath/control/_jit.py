@@ -20,17 +20,21 @@ from ..online._layout import F_PLAY_WIDTH
 __all__ = ["solve_kernel"]
 
 
-def _tip(meta, f, theta, w, w32, buf, f0, buf0, z, torques, sample, out):
-    """Model tip (mm) of the next sample at effective angles ``z``, into ``out``; the state restored."""
+def _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, out):
+    """Model tip (mm) of the next sample at effective angles ``z``, into ``out``; the state restored.
+
+    ``a64`` holds the step's ``f`` first and ``anet`` its ``buf`` first
+    (:class:`~skcath.online._jit.JitStep`): ``f0`` and ``buf0`` are their saved states.
+    """
     n = z.shape[0]
     for j in range(n):
         sample[j] = z[j]
     for j in range(torques.shape[0]):
         sample[n + j] = torques[j]
-    f[F_PLAY_WIDTH] = 0.0
-    step_kernel(meta, f, theta, w, w32, buf, out, sample)
-    f[:] = f0
-    buf[:] = buf0
+    a64[F_PLAY_WIDTH] = 0.0
+    step_kernel(meta, a64, anet, w32, out, sample, False)
+    a64[: f0.shape[0]] = f0
+    anet[: buf0.shape[0]] = buf0
 
 
 def _project(z, low, high, neutral, radius):
@@ -79,7 +83,7 @@ def _damped_step(J, r, mu, dz, A, b):
 
 def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
     """The Levenberg-Marquardt solve; ``z``, ``tip`` and ``J`` are written in place."""
-    meta, f, theta, w, w32, buf = arrays
+    meta, a64, anet, w32 = arrays
     low, high, neutral, radius = limits
     eps, max_iter, tol, damping = settings
     n = z.shape[0]
@@ -87,7 +91,7 @@ def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
     trial_tip, r, dz, z_new = np.empty(3), np.empty(3), np.empty(n), np.empty(n)
     A, b = np.empty((n, n)), np.empty(n)
     _project(z, low, high, neutral, radius)
-    _tip(meta, f, theta, w, w32, buf, f0, buf0, z, torques, sample, tip)
+    _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, tip)
     cost = 0.0
     for k in range(3):
         r[k] = target[k] - tip[k]
@@ -104,7 +108,7 @@ def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
             moved = max(moved, abs(z_new[j] - z[j]))
         if moved < tol:
             break
-        _tip(meta, f, theta, w, w32, buf, f0, buf0, z_new, torques, sample, trial_tip)
+        _tip(meta, a64, anet, w32, f0, buf0, z_new, torques, sample, trial_tip)
         cost_new = 0.0
         for k in range(3):
             cost_new += (target[k] - trial_tip[k]) ** 2
@@ -122,10 +126,10 @@ def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
 
 def _jacobian(arrays, f0, buf0, z, torques, eps, tip, J, sample, out):
     """Forward-difference Jacobian (mm/deg) at ``z``, whose tip is ``tip``, into ``J``."""
-    meta, f, theta, w, w32, buf = arrays
+    meta, a64, anet, w32 = arrays
     for j in range(z.shape[0]):
         z[j] += eps
-        _tip(meta, f, theta, w, w32, buf, f0, buf0, z, torques, sample, out)
+        _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, out)
         z[j] -= eps
         for k in range(3):
             J[k, j] = (out[k] - tip[k]) / eps

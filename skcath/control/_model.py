@@ -64,10 +64,12 @@ class ModelInverse:
 
             self._compiled = solve_kernel()
             self._limits = (limits.low, limits.high, limits.neutral, limits.radius)
-        function, meta, f, theta, w, w32, buf = estimator._call
-        self._call = (function, meta, f, theta, w, w32, buf)
-        self._f, self._buf = f, buf
-        self._f0, self._buf0 = f.copy(), buf.copy()
+        packed = estimator._packed
+        self._step = packed.call  # call(out, sample, check)
+        # the compiled solve steps the engine's arrays as the estimator's step does
+        self._arrays = (packed.meta, packed.a64, packed.anet, packed.w32) if self._compiled else None
+        self._f, self._buf = packed.f, packed.buf
+        self._f0, self._buf0 = packed.f.copy(), packed.buf.copy()
         self.n_motors = len(estimator.q_neutral_)
         self.n_evaluations = 0
 
@@ -79,12 +81,11 @@ class ModelInverse:
         estimator's own state is kept aside and restored by :meth:`end`.
         """
         self._saved = (self._f.copy(), self._buf.copy())
-        function, meta, f, theta, w, w32, buf = self._call
         out = np.empty(3)
         for sample in pending:
-            function(meta, f, theta, w, w32, buf, out, sample)
-        np.copyto(self._f0, f)
-        np.copyto(self._buf0, buf)
+            self._step(out, tuple(sample), False)
+        np.copyto(self._f0, self._f)
+        np.copyto(self._buf0, self._buf)
 
     def end(self):
         """Give the estimator back the state it had before :meth:`begin`."""
@@ -93,11 +94,10 @@ class ModelInverse:
 
     def tip(self, z, torques, out):
         """Model tip (mm) of the next sample at effective angles ``z`` (deg), into ``out``."""
-        function, meta, f, theta, w, w32, buf = self._call
-        f[F_PLAY_WIDTH] = 0.0
-        function(meta, f, theta, w, w32, buf, out, (*z.tolist(), *torques))
-        np.copyto(f, self._f0)
-        np.copyto(buf, self._buf0)
+        self._f[F_PLAY_WIDTH] = 0.0
+        self._step(out, (*z.tolist(), *torques), False)
+        np.copyto(self._f, self._f0)
+        np.copyto(self._buf, self._buf0)
         self.n_evaluations += 1
         return out
 
@@ -131,7 +131,7 @@ class ModelInverse:
         """
         if self._compiled is not None:
             z, tip, J = np.array(z0, dtype=float), np.empty(3), np.empty((3, self.n_motors))
-            self._compiled(self._call[1:], self._f0, self._buf0, np.asarray(target, dtype=float), z,
+            self._compiled(self._arrays, self._f0, self._buf0, np.asarray(target, dtype=float), z,
                            np.asarray(torques, dtype=float), self._limits,
                            (self.eps, float(max_iter), float(tol_deg), float(damping)), tip, J)
             return z, tip, J
