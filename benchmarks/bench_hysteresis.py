@@ -76,7 +76,7 @@ def main(argv=None):
                 print(*(f"{v:.3f}" if isinstance(v, float) else v for v in rows[-1].values()),
                       sep="\t", flush=True)
     table = pd.DataFrame(rows).set_index(["mechanism", "backbone", "hysteresis"])
-    with pd.option_context("display.width", 120, "display.float_format", "{:.3f}".format):
+    with pd.option_context("display.width", 140, "display.max_columns", None, "display.float_format", "{:.3f}".format):
         print(table)
 
 
