@@ -133,11 +133,12 @@ def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", sear
     :func:`strided_reference`; default ``problem.calibrate``) on its
     effective sweep angles:
 
-    1. the loop half-width of the play (softness 0), as
-       ``hysteresis="play"`` (:func:`~skcath.backbones.identify_play_width`);
+    1. the loop half-width of the play (softness 0): a grid of step
+       :data:`WIDTH_GRID_STEP_DEG` in ``[0, max_play_deg]``, then a bounded
+       scalar search (:func:`scipy.optimize.minimize_scalar`, tolerance
+       :data:`WIDTH_XTOL_DEG`) between the neighbours of the best;
     2. the softness at that half-width, by a bounded scalar search
-       (:func:`scipy.optimize.minimize_scalar`, tolerance
-       :data:`SOFTNESS_XTOL`);
+       (tolerance :data:`SOFTNESS_XTOL`);
     3. the half-width at that softness, within :data:`WIDTH_RANGE_DEG` of
        the play's (tolerance :data:`WIDTH_XTOL_DEG`).
 
@@ -147,6 +148,21 @@ def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", sear
     (``n log(SSE_0 / SSE) > p log n``, ``n`` the residuals, ``p = 2``),
     else no hysteresis: noise is never fitted. Flat or short sweeps fall
     back to no hysteresis with a warning naming ``where``.
+
+    Parameters
+    ----------
+    problem : SweepProblem
+        The sweep's ``segments`` (motor angles in deg, times in s),
+        ``target`` (reference tips, mm) and ``calibrate``.
+    max_play_deg : float
+        Largest threshold of the grid and largest half-width searched (deg).
+    n_motors : int
+        Number of motors.
+    where : str
+        Names the rows in the warning of a fallback (e.g. ``"run 'R1'"``).
+    search : callable, optional
+        ``search(z) -> (params, info)`` with ``info["rmse_mm"]``: the
+        calibration that judges the trials; None means ``problem.calibrate``.
 
     Returns
     -------
