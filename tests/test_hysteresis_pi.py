@@ -300,3 +300,15 @@ def test_soft_play_keeps_the_loop_width_and_is_the_play_without_softness():
     assert ramp[-1, 0] - soft.forward(ramp, _times(200))[-1, 0] == pytest.approx(6.0)
     with pytest.raises(ValueError, match="softness"):
         soft_play(1.0, 0.8, 20.0)  # the dead band would be negative
+
+
+def test_pdl_identifies_the_pi_by_its_own_calibration(pcc_params):
+    # PDL's calibration fits every ray on its own rows: the PI it keeps is the
+    # one of the lowest such RMSE, so a soft loop beats the play's
+    true = soft_play(5.0, 0.6, max_play_deg=20.0)
+    q = _sweep(40.0)
+    X = _recording(q, pcc_tip(true.forward(q, _times(len(q))), pcc_params))
+    pi = PDLBackbone(hysteresis="pi").fit(X).calibrate(X)
+    play = PDLBackbone(hysteresis="play").fit(X).calibrate(X)
+    assert pi.table["rmse_mm"].iloc[0] < 0.95 * play.table["rmse_mm"].iloc[0]
+    assert pi.hysteresis["R1"].weights[1] > 0.1
