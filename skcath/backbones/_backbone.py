@@ -57,9 +57,10 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         Largest number of Gauss-Newton steps per {}.
     hysteresis : {{None, "play", "pi"}}, default=None
         None: the backbone reads the motor angles as they are. ``"pi"``: a
-        Prandtl-Ishlinskii hysteresis with dead band and creep
-        (:class:`PrandtlIshlinskii`), identified on each run's sweep from
-        the play's half-width on (``calibrate`` returns the models in
+        Prandtl-Ishlinskii hysteresis with dead band
+        (:class:`PrandtlIshlinskii`), its loop half-width and softness
+        identified on each run's sweep by the backbone's own calibration
+        RMSE (``calibrate`` returns the models in
         ``hysteresis`` and their parameters in the table's ``pi_*``
         columns; ``max_play_deg`` is its largest threshold; see
         ``docs/backbones.rst``). ``"play"``:
