@@ -23,6 +23,7 @@ from skcath.backbones import (
     play_operator,
 )
 from skcath.backbones._pi import PI_GRID_FRACTIONS
+from skcath.backbones._pi_sweep import soft_play
 
 GRID = np.asarray(PI_GRID_FRACTIONS) * 20.0
 
@@ -185,7 +186,9 @@ def pcc_params():
 
 
 def test_identification_recovers_a_known_pi(pcc_params):
-    true = PrandtlIshlinskii(GRID, [0.5, 0.0, 0.5, 0.0], dead_band=2.0, asymmetry=[0.0, 0.0])
+    # a PI of the identified family: half the lag in the dead band, half in the plays
+    true = soft_play(5.0, 0.5, max_play_deg=20.0)
+    assert true.dead_band > 0 and true.weights[1] > 0
     q = _sweep(40.0)
     X = _recording(q, pcc_tip(true.forward(q, _times(len(q))), pcc_params))
     calibration = PCCBackbone(hysteresis="pi").fit(X).calibrate(X)
@@ -220,11 +223,21 @@ def test_a_flat_sweep_falls_back_with_a_warning(pcc_params):
     assert_allclose(calibration.nominal, no.nominal, atol=1e-9)
 
 
-def test_a_short_sweep_falls_back_with_a_warning(pcc_params):
-    q = _sweep(40.0, n_per_leg=4)
-    X = _recording(q, pcc_tip(q, pcc_params))
-    with pytest.warns(UserWarning, match=r"too few to identify.*run 'R1'"):
-        PCCBackbone(hysteresis="pi").fit(X).calibrate(X)
+def test_a_short_sweep_falls_back_with_a_warning():
+    from skcath.backbones._pi import SweepProblem
+    from skcath.backbones._pi_sweep import identify_sweep_pi
+
+    q = _sweep(40.0)[:30]
+    target = np.column_stack([q, np.zeros(len(q))])
+
+    def calibrate(z):  # a linear backbone fitted by least squares
+        coef = np.linalg.lstsq(z, target, rcond=None)[0]
+        return coef, {"rmse_mm": float(np.sqrt(np.mean((z @ coef - target) ** 2)))}
+
+    problem = SweepProblem([(q, _times(len(q)))], target, calibrate, lambda z, c: z @ c)
+    with pytest.warns(UserWarning, match=r"30 rows .* too few to identify.*run 'R1'"):
+        model, _, _ = identify_sweep_pi(problem, max_play_deg=20.0, n_motors=2, where="run 'R1'")
+    assert model.dead_band == 0.0 and model.weights[0] == 1.0
 
 
 def test_polynomial_fit_with_pi_lowers_the_error_of_a_looped_recording():
@@ -273,3 +286,29 @@ def test_polynomial_sweep_calibration_with_pi(pcc_params):
     assert pi.table["rmse_mm"].iloc[0] < 0.5 * plain.table["rmse_mm"].iloc[0]
     assert pi.hysteresis["R1"].dead_band > 0.5
     assert "hysteresis" not in plain and "pi_w0" not in plain.table
+
+
+def test_soft_play_keeps_the_loop_width_and_is_the_play_without_softness():
+    q = np.column_stack([30.0 * np.sin(np.linspace(0.0, 6 * np.pi, 400)), np.zeros(400)])
+    t = _times(len(q))
+    assert_array_equal(soft_play(4.0, 0.0, 20.0).forward(q, t),
+                       PrandtlIshlinskii.play(4.0).forward(q, t))
+    soft = soft_play(6.0, 0.8, 20.0)
+    assert soft.dead_band + np.sum(soft.weights * soft.thresholds) == pytest.approx(6.0)
+    # after a long travel the lag of the effective angle is the loop half-width
+    ramp = np.column_stack([np.linspace(0.0, 60.0, 200), np.zeros(200)])
+    assert ramp[-1, 0] - soft.forward(ramp, _times(200))[-1, 0] == pytest.approx(6.0)
+    with pytest.raises(ValueError, match="softness"):
+        soft_play(1.0, 0.8, 20.0)  # the dead band would be negative
+
+
+def test_pdl_identifies_the_pi_by_its_own_calibration(pcc_params):
+    # PDL's calibration fits every ray on its own rows: the PI it keeps is the
+    # one of the lowest such RMSE, so a soft loop beats the play's
+    true = soft_play(5.0, 0.6, max_play_deg=20.0)
+    q = _sweep(40.0)
+    X = _recording(q, pcc_tip(true.forward(q, _times(len(q))), pcc_params))
+    pi = PDLBackbone(hysteresis="pi").fit(X).calibrate(X)
+    play = PDLBackbone(hysteresis="play").fit(X).calibrate(X)
+    assert pi.table["rmse_mm"].iloc[0] < 0.95 * play.table["rmse_mm"].iloc[0]
+    assert pi.hysteresis["R1"].weights[1] > 0.1

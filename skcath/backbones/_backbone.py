@@ -27,7 +27,8 @@ from .._validation import check_recordings, motor_columns
 from .._sweep_end import N_SWEEP_ATTR, n_sweep_hint
 from ..sweep import _check_sweep_references, _find_rays
 from ._hysteresis import identify_play_width, play_operator
-from ._pi import PrandtlIshlinskii, SweepProblem, identify_pi
+from ._pi import PrandtlIshlinskii, SweepProblem
+from ._pi_sweep import identify_sweep_pi, strided_reference
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
 
@@ -56,9 +57,10 @@ _PARAMETERS_AND_ATTRIBUTES = """Parameters
         Largest number of Gauss-Newton steps per {}.
     hysteresis : {{None, "play", "pi"}}, default=None
         None: the backbone reads the motor angles as they are. ``"pi"``: a
-        Prandtl-Ishlinskii hysteresis with dead band and creep
-        (:class:`PrandtlIshlinskii`), identified on each run's sweep from
-        the play's half-width on (``calibrate`` returns the models in
+        Prandtl-Ishlinskii hysteresis with dead band
+        (:class:`PrandtlIshlinskii`), its loop half-width and softness
+        identified on each run's sweep by the backbone's own calibration
+        RMSE (``calibrate`` returns the models in
         ``hysteresis`` and their parameters in the table's ``pi_*``
         columns; ``max_play_deg`` is its largest threshold; see
         ``docs/backbones.rst``). ``"play"``:
@@ -142,9 +144,11 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
             lambda z: backbone._calibrate(z, ref_sweep, rays, q_sweep),
             backbone._evaluate,
         )
-        model, params, info = identify_pi(
+        # trials read evenly strided sweep rows; the rays stay those of all the rows
+        few = strided_reference(ref_sweep)
+        model, params, info = identify_sweep_pi(
             problem, max_play_deg=backbone.max_play_deg, n_motors=q.shape[1],
-            where=f"run {run!r}",
+            where=f"run {run!r}", search=lambda z: backbone._calibrate(z, few, rays, q_sweep),
         )
         return backbone._evaluate(model.forward(q, t), params), params, info, model
     fits = {}
