@@ -303,3 +303,79 @@ def test_compiled_inverse_gives_the_commands_of_the_numpy_one(runs, pipes):
         assert (controller.model_._compiled is not None) == (engine == "numba")
         commands[engine] = _drive(controller, ModelPlant(pipe, sweep), targets)[1]
     np.testing.assert_allclose(commands["numba"], commands["numpy"], atol=1e-6)
+
+
+def test_play_inverse_dead_band_holds_small_reversals_only():
+    """Under jitter within the dead band the motor stays within the play; a larger reversal is made."""
+    width, band = 4.0, 1.0
+    inverse = PlayInverse(width, dead_band=band)
+    z, q = np.zeros(1), np.zeros(1)
+    q = inverse.command(np.array([10.0]), z, q)  # a move up: the motor pushes from below
+    z = np.array([play_kernel(z[0], q[0], width)])
+    np.testing.assert_allclose(z, [10.0])
+    rng = np.random.default_rng(0)
+    commands = []
+    for jitter in rng.uniform(-0.4, 0.4, size=40):
+        q = inverse.command(np.array([10.0 + jitter]), z, q)
+        z = np.array([play_kernel(z[0], q[0], width)])
+        commands.append(q[0])
+    # motion up (the side the motor pushes) is followed, reversals within the band are not made
+    assert np.ptp(commands) < 2.0 * width - 1.0
+    assert abs(z[0] - 10.0) <= 0.4
+    q = inverse.command(z - 3.0, z, q)  # a reversal larger than the band crosses the play
+    np.testing.assert_allclose(play_kernel(z[0], q[0], width), z[0] - 3.0)
+    jittery = PlayInverse(width)  # without a dead band the same jitter swings the motor across the play
+    z, q, commands = np.array([10.0]), np.array([14.0]), []
+    for jitter in rng.uniform(-0.4, 0.4, size=40):
+        q = jittery.command(np.array([10.0 + jitter]), z, q)
+        z = np.array([play_kernel(z[0], q[0], width)])
+        commands.append(q[0])
+    assert np.ptp(commands) > 2.0 * width
+
+
+class NoisyDelayedPlant(DelayedPlant):
+    """A :class:`DelayedPlant` whose tip is off the model's by ``offset`` and whose tracker is noisy."""
+
+    def __init__(self, pipe, sweep, offset, noise_mm, seed):
+        super().__init__(pipe, sweep)
+        self.offset = np.asarray(offset, dtype=float)
+        self.noise, self.rng = noise_mm, np.random.default_rng(seed)
+
+    def step(self, command):
+        obs = dict(super().step(command))
+        for k in ("x", "y", "z"):
+            obs[k] += self.noise * self.rng.normal()
+        self.obs = obs
+        return obs
+
+
+def test_tracker_loop_holds_a_target_through_a_play_and_a_delay(runs, pipes):
+    """Closed on a noisy tracker, with a play and a sample of delay, the tip holds the target near the noise."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    target = _model_tips(pipe, sweep, motion)[80]
+    offset, noise = (1.5, -1.0, 0.0), 0.2
+    finals = {}
+    for name, controller in (
+        ("feedback", FeedbackController(pipe, close_on="tracker", latency=1, rate_limit=60.0)),
+        ("feedforward", FeedforwardController(pipe, latency=1, rate_limit=60.0)),
+    ):
+        controller.start(sweep)
+        plant = NoisyDelayedPlant(pipe, sweep, offset, noise, seed=3)
+        tips, commands = [], []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnreachableTargetWarning)
+            for _ in range(80):
+                commands.append(controller.step(target, plant.obs))
+                plant.step(commands[-1])
+                if plant.tip is not None:
+                    tips.append(plant.tip.copy())
+        tips, commands = np.array(tips), np.array(commands)
+        # the error across the tip's surface: what the two motors can remove
+        finals[name] = np.linalg.norm(tips[-30:] - target, axis=1)
+        if name == "feedback":
+            # no swing across the play (half-width plant.est.play_width_) at the hold
+            assert np.abs(np.diff(commands[-30:], axis=0)).max() < plant.est.play_width_
+            assert np.all(np.abs(np.diff(commands, axis=0)) <= 60.0 * controller.dt_ + 1e-9)
+    assert np.median(finals["feedback"]) < 0.5 * np.median(finals["feedforward"])
+    assert np.median(finals["feedback"]) < np.linalg.norm(offset) * 0.4

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections import deque
 from numbers import Integral, Real
@@ -90,7 +91,7 @@ class _Controller(BaseEstimator):
         t = X[fmt.TIME].to_numpy(dtype=float)
         self.dt_ = float(np.median(np.diff(t))) if len(t) > 1 else 0.1
         self.estimator_ = est
-        self.inverse_ = hysteresis_inverse(est)
+        self.inverse_ = hysteresis_inverse(est, self._dead_band())
         self.model_ = ModelInverse(est, self.limits_.project, eps_deg=1e-3, limits=self.limits_)
         self._grid_z, self._grid_tips = _seed_grid(est, self.limits_)
         self.command_ = self.limits_.project(q[-1])
@@ -105,6 +106,10 @@ class _Controller(BaseEstimator):
 
     def _reset_feedback(self):
         """Feedback state set by :meth:`start`; none for the feedforward."""
+
+    def _dead_band(self):
+        """Smallest reversal of a played angle the hysteresis inverse makes (deg); none for the feedforward."""
+        return 0.0
 
     def _check_started(self):
         if not hasattr(self, "estimator_"):
@@ -147,7 +152,8 @@ class _Controller(BaseEstimator):
         found (a local minimum, e.g. in a dead zone of the backbone).
         """
         z, tip, J = self._solve(target, self._z_solution)
-        miss2 = float(np.sum((target - tip) ** 2))
+        d = target - tip
+        miss2 = float(d @ d)
         if miss2 > GRID_MARGIN_MM:  # else no grid tip can be closer by the margin
             d2 = np.sum((self._grid_tips - target) ** 2, axis=1)
             best = int(np.argmin(d2))
@@ -156,7 +162,8 @@ class _Controller(BaseEstimator):
                 if np.sum((target - tip2) ** 2) < miss2:
                     z, tip, J = z2, tip2, J2
         self._z_solution = z
-        miss = float(np.linalg.norm(target - tip))
+        d = target - tip
+        miss = math.sqrt(float(d @ d))
         if miss > self.reach_tol_mm:
             self.n_unreachable_ += 1
             warnings.warn(
@@ -172,7 +179,7 @@ class _Controller(BaseEstimator):
         """The command (deg) for the wanted effective angles: inverted hysteresis, motor and rate limits."""
         q = self.inverse_.command(self.limits_.project(z_wanted), self._effective_state(), self.command_)
         q_limited = self.limits_.project(q)
-        limited = not np.array_equal(q_limited, q)
+        limited = q_limited.tolist() != q.tolist()
         if self.rate_limit is not None:
             q_limited, slowed = rate_limited(q_limited, self.command_, self.rate_limit * self.dt_)
             limited = limited or slowed
@@ -228,7 +235,7 @@ _COMMON_ATTRIBUTES = """
     estimate_ : ndarray of shape (3,)
         The model's tip estimate for the last observation (mm).
     aimed_ : ndarray of shape (3,)
-        The model tip nearest the last target (mm): the target itself when reachable.
+        The model tip nearest the last target (mm; for the feedback, the wanted tip): the target itself when reachable.
     n_unreachable_ : int
         Targets farther than ``reach_tol_mm`` from every reachable model tip.
 """
@@ -299,19 +306,26 @@ class FeedforwardController(_Controller):
 
 
 class FeedbackController(_Controller):
-    __doc__ = f"""Resolved-rate feedback on the streamed tip estimate (or the tracker), on the model's Jacobian.
+    __doc__ = f"""Feedback on the streamed tip estimate (or the tracker) through the model's inverse.
 
-    Every sample the model is solved for the target as by
-    :class:`FeedforwardController` (which also clips an unreachable target to
-    the nearest reachable model tip), and the tip error ``e`` (the aimed tip
-    minus the estimate, or minus the tracker's tip) is turned into a change
-    of the effective angles by damped least squares on the model's Jacobian,
-    ``gain * (J^T J + damping^2 I)^-1 J^T e``. With ``feedforward=True`` that
-    change accumulates into a correction added to the feedforward solution
-    (integral action; it stops accumulating while the command is held at a
-    motor or rate limit); otherwise it moves the previous wanted angles
-    (classical resolved rate). The hysteresis is inverted, and the limits
-    kept, as for the feedforward.
+    With ``feedforward=True`` (default) the loop is an internal-model
+    (Smith-predictor) loop on the wanted tip: every sample the model's
+    error on the observed sample, ``d`` (the estimate, or the tracker's tip,
+    minus the tip the model predicted for the command that sample shows,
+    ``latency + 1`` steps before), is low-pass filtered into a tip
+    correction, ``correction_ += gain * (d - correction_)``, and the model is
+    solved as by :class:`FeedforwardController` for the wanted tip
+    ``target - correction_``. As the prediction compared with the
+    measurement is that of the command it measures, the loop's delay does
+    not enter the loop; a wanted tip that moves smoothly goes through the
+    hysteresis inverse, and a reversal of a played angle smaller than
+    ``dead_band`` is not made. The correction is not updated from a sample
+    whose command was held at a motor or rate limit.
+
+    With ``feedforward=False``, classical resolved rate: the tip error ``e``
+    (the aimed tip minus the estimate, or minus the tracker's tip) moves the
+    previous wanted angles by ``gain * (J^T J + damping^2 I)^-1 J^T e``,
+    damped least squares on the model's Jacobian.
 
     Parameters
     ----------
@@ -320,12 +334,23 @@ class FeedbackController(_Controller):
         tracker's tip (``x, y, z`` of the observation): the latter needs the
         tracker and bounds what the estimate can give.
     feedforward : bool, default=True
-        Whether the feedforward solution is the nominal command.
-    gain : float, default=0.5
-        Fraction of the least-squares correction applied per sample, in (0, 1].{_COMMON_PARAMETERS}
+        Whether the feedforward solution of the corrected wanted tip is the
+        command (the internal-model loop), or the resolved-rate law moves the
+        previous angles.
+    gain : float, default=0.2
+        Per sample: the weight of the newest model error in the tip
+        correction (``feedforward=True``), or the fraction of the
+        least-squares correction applied (``feedforward=False``); in (0, 1].
+        Lower filters more of the measurement's noise and follows a change
+        of the model's error more slowly (a time constant of about
+        ``1 / gain`` samples).
+    dead_band : float, default=1.0
+        Smallest reversal of a played angle (deg) the play's inverse makes;
+        for a pipeline without the play it has no effect. 0: every reversal.{_COMMON_PARAMETERS}
     Attributes
-    ----------{_COMMON_ATTRIBUTES}    correction_ : ndarray of shape (n_motors,)
-        Accumulated correction of the effective angles (deg), with ``feedforward=True``.
+    ----------{_COMMON_ATTRIBUTES}    correction_ : ndarray of shape (3,)
+        The filtered model error (mm) subtracted from the target, with
+        ``feedforward=True``; zeros otherwise.
 
     See Also
     --------
@@ -337,15 +362,17 @@ class FeedbackController(_Controller):
         "close_on": [StrOptions({"estimate", "tracker"})],
         "feedforward": ["boolean"],
         "gain": [Interval(Real, 0, 1, closed="right")],
+        "dead_band": [Interval(Real, 0, None, closed="left")],
     }
 
-    def __init__(self, pipeline, *, close_on="estimate", feedforward=True, gain=0.5, motor_limits=None,
-                 rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05, latency=1,
-                 engine="auto"):
+    def __init__(self, pipeline, *, close_on="estimate", feedforward=True, gain=0.2, dead_band=1.0,
+                 motor_limits=None, rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05,
+                 latency=1, engine="auto"):
         self.pipeline = pipeline
         self.close_on = close_on
         self.feedforward = feedforward
         self.gain = gain
+        self.dead_band = dead_band
         self.motor_limits = motor_limits
         self.rate_limit = rate_limit
         self.reach_tol_mm = reach_tol_mm
@@ -354,10 +381,14 @@ class FeedbackController(_Controller):
         self.latency = latency
         self.engine = engine
 
+    def _dead_band(self):
+        return self.dead_band
+
     def _reset_feedback(self):
-        self.correction_ = np.zeros_like(self.command_)
+        self.correction_ = np.zeros(3)
         self._z_wanted = self.command_.copy()
-        self._aims = deque([None] * (self.latency + 1), maxlen=self.latency + 1)
+        # (the tip the model predicted, whether the command was limited) of the commands not yet observed
+        self._aims = deque([(None, True)] * (self.latency + 1), maxlen=self.latency + 1)
 
     def step(self, target, obs):
         self._check_started()
@@ -373,16 +404,16 @@ class FeedbackController(_Controller):
 
     def _feedback(self, target, aimed_before, measured):
         """The command from the model's solution and the error of the aim the observation shows."""
-        z_ff, aimed, J = self._aim(target)
-        self._aims.append(aimed)
+        predicted, limited = aimed_before
         if self.feedforward:
-            if aimed_before is not None and not self._limited:
-                self.correction_ = self.correction_ + self.gain * damped_solve(
-                    J, aimed_before - measured, self.damping)
-            # no more correction than the limits leave room for
-            self.correction_ = self.limits_.project(z_ff + self.correction_) - z_ff
-            self._z_wanted = z_ff + self.correction_
+            if predicted is not None and not limited:
+                self.correction_ = self.correction_ + self.gain * (measured - predicted - self.correction_)
+            z, aimed, _ = self._aim(target - self.correction_)
+            self._z_wanted = z
         else:
+            z_ff, aimed, J = self._aim(target)
             step = self.gain * damped_solve(J, aimed - measured, self.damping)
             self._z_wanted = self.limits_.project(self._z_wanted + step)
-        return self._issue(self._z_wanted)
+        command = self._issue(self._z_wanted)
+        self._aims.append((aimed, self._limited))
+        return command

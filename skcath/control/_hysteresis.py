@@ -55,24 +55,46 @@ class PlayInverse:
     is wanted (within :data:`TOL_DEG`) keeps its command, brought within
     ``width`` of ``z``.
 
+    A reversal (a wanted angle on the other side of the played angle than
+    the motor, which last pushed it) crosses the whole play, ``2 * width``
+    of motor travel; with ``dead_band > 0`` a reversal smaller than
+    ``dead_band`` is not made (the command is kept, brought within
+    ``width`` of ``z``), so that a wanted angle that jitters about the
+    played one does not swing the motor across the play at every sample.
+    Motion in the direction the motor pushes is always followed.
+
     Parameters
     ----------
     width : float
         Half-width of the play (deg), ``>= 0``.
+    dead_band : float, default=0.0
+        Smallest reversal of the played angle that is made (deg), ``>= 0``.
     """
 
     kind = "play"
 
-    def __init__(self, width):
+    def __init__(self, width, dead_band=0.0):
         self.width = float(width)
+        self.dead_band = float(dead_band)
 
     def command(self, z_wanted, z_state, q_previous):
         """Motor command (deg) that plays the effective angles to ``z_wanted``; as :meth:`IdentityInverse.command`."""
-        z = np.asarray(z_wanted, dtype=float)
         w = self.width
-        # within TOL_DEG of the played angle counts as there: rounding does not flip the side
-        up, down = z > z_state + TOL_DEG, z < z_state - TOL_DEG
-        return np.where(up, z + w, np.where(down, z - w, np.clip(q_previous, z - w, z + w)))
+        band = max(self.dead_band, TOL_DEG)
+        q = []
+        # per motor on floats: a few motors, where numpy's calls would cost more than the arithmetic
+        for zj, sj, qj in zip(np.asarray(z_wanted, dtype=float).tolist(), np.asarray(z_state).tolist(),
+                              np.asarray(q_previous).tolist()):
+            # the side the motor pushes from needs no reversal; the other needs dead_band
+            # (within TOL_DEG of the played angle counts as there: rounding does not flip the side)
+            tol_up, tol_down = (TOL_DEG, band) if qj >= sj else (band, TOL_DEG)
+            if zj > sj + tol_up:
+                q.append(zj + w)
+            elif zj < sj - tol_down:
+                q.append(zj - w)
+            else:
+                q.append(min(max(qj, zj - w), zj + w))
+        return np.array(q)
 
 
 #: The inverse of each kind of hysteresis: ``kind -> factory(estimator)``, for a started
@@ -83,13 +105,15 @@ INVERSES = {
 }
 
 
-def hysteresis_inverse(estimator):
+def hysteresis_inverse(estimator, dead_band=0.0):
     """The inverse of the hysteresis in front of a started estimator's backbone.
 
     Parameters
     ----------
     estimator : OnlineEstimator
         Started.
+    dead_band : float, default=0.0
+        Smallest reversal of a played angle that is made (deg); for the play only.
 
     Returns
     -------
@@ -97,4 +121,7 @@ def hysteresis_inverse(estimator):
         ``PlayInverse`` for a play of positive half-width, else ``IdentityInverse``.
     """
     kind = "play" if getattr(estimator, "play_width_", 0.0) > 0.0 else "none"
-    return INVERSES[kind](estimator)
+    inverse = INVERSES[kind](estimator)
+    if kind == "play":
+        inverse.dead_band = float(dead_band)
+    return inverse

@@ -39,15 +39,17 @@ class MotorLimits:
     def __init__(self, low, high, neutral, radius):
         self.low, self.high = np.asarray(low, float), np.asarray(high, float)
         self.neutral, self.radius = np.asarray(neutral, float), float(radius)
+        self._bounds = tuple(zip(self.low.tolist(), self.high.tolist(), self.neutral.tolist()))
 
     def project(self, q):
         """``q`` (deg) brought into the box, then radially into the disk."""
-        q = np.minimum(np.maximum(q, self.low), self.high)
-        d = q - self.neutral
-        r = math.sqrt(float(d @ d))
+        # on floats: a few motors, where numpy's calls would cost more than the arithmetic
+        v = [min(max(x, lo), hi) for x, (lo, hi, _) in zip(np.asarray(q, dtype=float).tolist(), self._bounds)]
+        d = [x - c for x, (_, _, c) in zip(v, self._bounds)]
+        r = math.sqrt(sum(x * x for x in d))
         if r > self.radius:
-            q = self.neutral + d * (self.radius / r)
-        return q
+            v = [c + x * (self.radius / r) for x, (_, _, c) in zip(d, self._bounds)]
+        return np.array(v)
 
     def contains(self, q, tol=1e-9):
         """Whether ``q`` (deg) is within the limits."""
@@ -77,7 +79,7 @@ def check_target(target):
         raise ValueError(f"target must be 3 numbers, the tip's x, y, z in mm; got {target!r}.") from exc
     if t.shape != (3,):
         raise ValueError(f"target must have shape (3,) (x, y, z in mm in the base frame); got shape {t.shape}.")
-    if not np.all(np.isfinite(t)):
+    if not all(math.isfinite(v) for v in t.tolist()):
         raise ValueError(f"target must be finite (x, y, z in mm); got {t.tolist()}.")
     return t
 
