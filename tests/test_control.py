@@ -429,7 +429,7 @@ def test_compiled_step_gives_the_numpy_steps_commands(runs, pipes, case):
 
 @needs_numba
 def test_compiled_play_inverse_is_the_python_one():
-    """The compiled play inverse makes the command of :class:`PlayInverse` to the last bit, dead band and ties included."""
+    """The compiled play inverse makes :class:`PlayInverse`'s command to the last bit, dead band and ties included."""
     from skcath.control import _jit
 
     _jit.control_kernel()
@@ -478,3 +478,27 @@ def test_model_view_looks_ahead_without_moving_the_stream(runs, pipes, engine):
     for sample in samples[6:]:
         np.testing.assert_array_equal(est.step(*sample), twin.step(*sample))
     np.testing.assert_array_equal(est.play_state_, twin.play_state_)
+
+
+def test_one_term_pi_inverse_is_the_play_inverse_without_its_dead_band():
+    """The play as a one-term PI: its inverse commands as PlayInverse does, until a reversal dead band holds."""
+    from skcath.backbones import PrandtlIshlinskii
+    from skcath.backbones._pi import pi_inverse_step
+
+    width = 3.0
+    theta, up, down = PrandtlIshlinskii.play(width, n_motors=1).pack_inverse()
+    rng = np.random.default_rng(0)
+    differ = {}
+    for band in (0.0, 1.0):
+        inverse, z_state, q = PlayInverse(width, dead_band=band), 0.0, 0.0
+        differ[band] = 0
+        for _ in range(1000):
+            z = z_state + (rng.normal(0.0, 0.4) if rng.random() < 0.5 else rng.normal(0.0, 5.0))
+            q_play = inverse.command(np.array([z]), np.array([z_state]), np.array([q]))[0]
+            # the PI inverse's state: its creep, its one play and its dead band at the played angle, the last command
+            q_pi = pi_inverse_step(theta, np.array([z_state, z_state, z_state, q]), 0, z, 0.1, up[0], down[0])
+            differ[band] += abs(q_pi - q_play) > 1e-9
+            q = q_play
+            z_state = play_kernel(z_state, q, width)
+    assert differ[0.0] == 0
+    assert differ[1.0] > 100  # the dead band holds small reversals that the PI inverse makes

@@ -20,9 +20,9 @@ import math
 import numpy as np
 
 from .._kernel import compiled, offsets
+from ..online._model_view_jit import kernels
 from ._compiled import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
 from ._hysteresis import TOL_DEG
-from ..online._model_view_jit import kernels
 
 __all__ = ["control_kernel", "control_step", "layout"]
 
@@ -30,8 +30,8 @@ _advance, _restore, _tip = kernels()
 
 #: Scalars of the state array: parameters, then state; blocks of ``n_motors`` follow from ``S_BLOCKS``.
 (S_GAIN, S_DAMPING, S_EPS, S_TOL, S_MAX_ITER, S_MAX_STEP, S_WIDTH, S_BAND, S_RADIUS, S_MARGIN,
- S_MODE, S_LATENCY, S_ISSUED_AT, S_AIMS_AT, S_MISS, S_LIMITED, S_CORRECTION, S_AIMED,
- S_BLOCKS) = offsets(*([1] * 16), 3, 3)
+ S_MODE, S_LATENCY, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_CORRECTION, S_AIMED,
+ S_BLOCKS) = offsets(*([1] * 15), 3, 3)
 #: Blocks of ``n_motors`` (deg): limits, last command, last solution, wanted angles, effective angles.
 B_LOW, B_HIGH, B_NEUTRAL, B_COMMAND, B_SOLUTION, B_WANTED, B_EFFECTIVE, N_BLOCKS = range(8)
 
@@ -42,6 +42,7 @@ def layout(n_motors):
 
 
 def _block(s, b, n):
+    """Block ``b`` of the state array ``s`` (a view)."""
     return s[S_BLOCKS + b * n : S_BLOCKS + (b + 1) * n]
 
 
