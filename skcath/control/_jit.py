@@ -20,13 +20,13 @@ import math
 import numpy as np
 
 from .._kernel import compiled, offsets
-from ..online._model_view_jit import kernels
+from ..online._model_view_jit import advance as _advance
+from ..online._model_view_jit import restore as _restore
+from ..online._model_view_jit import tip as _tip
 from ._compiled import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
 from ._hysteresis import TOL_DEG
 
 __all__ = ["control_kernel", "control_step", "layout"]
-
-_advance, _restore, _tip = kernels()
 
 #: Scalars of the state array: parameters, then state; blocks of ``n_motors`` follow from ``S_BLOCKS``.
 (S_GAIN, S_DAMPING, S_EPS, S_TOL, S_MAX_ITER, S_MAX_STEP, S_WIDTH, S_BAND, S_RADIUS, S_MARGIN,

@@ -7,12 +7,14 @@ w32`` (the step's arrays on the numba engine, ``f`` first in ``a64`` and
 aside) and ``f0, buf0`` (the state evaluations start from), and run the
 estimator's compiled step (:data:`skcath.online._jit.step_kernel`) on them,
 as the methods of :class:`~skcath.online._model_view.ModelView` do in
-Python. Imported only on the numba engine (it imports numba).
+Python. They are declared kernels (:func:`~skcath._kernel.kernel`), so that
+compiled code calls them by name and numba's cache knows their source.
+Imported only on the numba engine (it imports numba).
 """
 
 from __future__ import annotations
 
-from .._kernel import compiled
+from .._kernel import compiled, kernel
 from ._jit import step_kernel
 from ._layout import M_ANGLES
 from ._model_view import without_hysteresis
@@ -20,6 +22,7 @@ from ._model_view import without_hysteresis
 __all__ = ["advance", "kernels", "restore", "tip"]
 
 
+@kernel
 def advance(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, samples, count, torques, sample, out,
             effective):
     """Set the stream's state aside, step it by ``samples[:count]`` (hysteresis on); state of ``f0, buf0``.
@@ -47,12 +50,14 @@ def advance(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, samples, count, 
         effective[j] = f0[at + j]
 
 
+@kernel
 def restore(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0):
     """Give the stream the state :func:`advance` set aside."""
     a64[: saved_f.shape[0]] = saved_f
     anet[: saved_buf.shape[0]] = saved_buf
 
 
+@kernel
 def tip(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, z, torques, sample, out):
     """Model tip (mm) of the next sample at effective angles ``z`` (deg), into ``out``.
 
