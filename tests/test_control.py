@@ -300,7 +300,7 @@ def test_compiled_inverse_gives_the_commands_of_the_numpy_one(runs, pipes):
     commands = {}
     for engine in ("numpy", "numba"):
         controller = FeedbackController(pipe, engine=engine, latency=0).start(sweep)
-        assert (controller.model_._compiled is not None) == (engine == "numba")
+        assert (controller._compiled is not None) == (engine == "numba")
         commands[engine] = _drive(controller, ModelPlant(pipe, sweep), targets)[1]
     np.testing.assert_allclose(commands["numba"], commands["numpy"], atol=1e-6)
 
@@ -379,3 +379,126 @@ def test_tracker_loop_holds_a_target_through_a_play_and_a_delay(runs, pipes):
             assert np.all(np.abs(np.diff(commands, axis=0)) <= 60.0 * controller.dt_ + 1e-9)
     assert np.median(finals["feedback"]) < 0.5 * np.median(finals["feedforward"])
     assert np.median(finals["feedback"]) < np.linalg.norm(offset) * 0.4
+
+
+needs_numba = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="the numba engine needs numba")
+
+
+def _compare_engines(make, pipe, sweep, targets, offset=(0.0, 0.0, 0.0)):
+    """Commands, aims, corrections and unreachable counts of ``make(engine)`` on both engines."""
+    got = {}
+    for engine in ("numpy", "numba"):
+        controller = make(engine).start(sweep)
+        plant, record = DelayedPlant(pipe, sweep), []
+        plant.offset = np.asarray(offset, dtype=float)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnreachableTargetWarning)
+            for target in targets:
+                command = controller.step(target, plant.obs)
+                record.append([*command, *controller.aimed_, *getattr(controller, "correction_", ())])
+                plant.step(command)
+        got[engine] = (np.array(record), controller.n_unreachable_, controller._limited)
+    return got
+
+
+@needs_numba
+@pytest.mark.parametrize("case", ["feedforward", "internal-model", "resolved-rate", "tracker, limits"])
+def test_compiled_step_gives_the_numpy_steps_commands(runs, pipes, case):
+    """Over a task with far targets, rate and motor limits and a delay, both engines command the same."""
+    _, _, sweep, motion = runs
+    hysteresis = None if case == "resolved-rate" else "play"
+    pipe = pipes(PDLBackbone if case == "tracker, limits" else PCCBackbone, hysteresis)
+    tips = _model_tips(pipe, sweep, motion)
+    # model tips, then jumps between far ones (the rate limit binds), then out of reach (the seed grid restarts)
+    targets = np.vstack([tips[:40], np.repeat(tips[[20, 140, 60]], 8, axis=0),
+                         np.tile([[90.0, 40.0, 10.0]], (6, 1)), tips[100:110]])
+    params = {
+        "feedforward": (FeedforwardController, {"rate_limit": 60.0}),
+        "internal-model": (FeedbackController, {"rate_limit": 60.0}),
+        "resolved-rate": (FeedbackController, {"feedforward": False, "gain": 0.5, "latency": 0}),
+        "tracker, limits": (FeedbackController, {"close_on": "tracker", "motor_limits": [[-25.0, 25.0], [-40.0, 20.0]],
+                                                 "dead_band": 0.5}),
+    }[case]
+    Controller, kwargs = params
+    got = _compare_engines(lambda engine: Controller(pipe, engine=engine, **kwargs), pipe, sweep, targets,
+                           offset=(1.0, -0.5, 0.0))
+    np.testing.assert_allclose(got["numba"][0], got["numpy"][0], atol=1e-6)
+    assert got["numba"][1:] == got["numpy"][1:]
+    assert got["numpy"][1] >= 6  # the out-of-reach targets were met
+
+
+@needs_numba
+def test_compiled_play_inverse_is_the_python_one():
+    """The compiled play inverse makes :class:`PlayInverse`'s command to the last bit, dead band and ties included."""
+    from skcath.control import _jit
+
+    _jit.control_kernel()
+    rng = np.random.default_rng(4)
+    for width, band in ((0.0, 0.0), (3.0, 0.0), (3.0, 1.0), (0.5, 2.0)):
+        inverse = PlayInverse(width, dead_band=band)
+        for _ in range(200):
+            z_state, q_prev = rng.uniform(-20, 20, 3), rng.uniform(-20, 20, 3)
+            # near the played angle (within the tolerance and the band), at it, and far from it
+            z_wanted = z_state + rng.choice([0.0, 1e-7, -1e-7, 0.3, -0.3, 1.5, -1.5, 8.0], size=3)
+            q = np.empty(3)
+            _jit._play_command(z_wanted, z_state, q_prev, width, band, q)
+            assert np.array_equal(q, inverse.command(z_wanted, z_state, q_prev))
+
+
+@pytest.mark.parametrize("engine", ["numpy", pytest.param("numba", marks=needs_numba)])
+def test_model_view_looks_ahead_without_moving_the_stream(runs, pipes, engine):
+    """The view's tip is the backbone's at the effective angles; the stream steps on as if never looked at."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    samples = [tuple(row) for row in motion[CHANNELS].to_numpy()[:12]]
+    est, twin = (OnlineEstimator(pipe, engine=engine).start(sweep) for _ in range(2))
+    view = est._model_view()
+    width = view.play_width
+    assert width == est.play_width_ > 0
+    for sample in samples[:6]:
+        est.step(*sample)
+        twin.step(*sample)
+    played = np.array(est.play_state_)
+    commanded = samples[6]
+    view.advance([commanded])
+    # the state advanced by the commanded sample, its play included
+    expected = [play_kernel(p, q, width) for p, q in zip(played, commanded[:2])]
+    np.testing.assert_allclose(view.effective, expected, rtol=0, atol=1e-12)
+    z, torques = np.array([12.0, -7.0]), commanded[2:]
+    # the hysteresis skipped: the tip at the effective angles themselves (no residual)
+    np.testing.assert_allclose(view.tip(z, torques, np.empty(3)), est._backbone(*z), atol=1e-9)
+    np.testing.assert_allclose(view.tip(z, torques, np.empty(3)), est._backbone(*z), atol=1e-9)
+    np.testing.assert_allclose(view.effective, expected, rtol=0, atol=1e-12)  # restored after each look
+    if engine == "numba":
+        arrays, advance, restore, tip = view.compiled()
+        out = np.empty(3)
+        tip(*arrays, z, np.asarray(torques), np.empty(4), out)
+        np.testing.assert_allclose(out, est._backbone(*z), atol=1e-9)
+    view.restore()
+    for sample in samples[6:]:
+        np.testing.assert_array_equal(est.step(*sample), twin.step(*sample))
+    np.testing.assert_array_equal(est.play_state_, twin.play_state_)
+
+
+def test_one_term_pi_inverse_is_the_play_inverse_without_its_dead_band():
+    """The play as a one-term PI: its inverse commands as PlayInverse does, until a reversal dead band holds."""
+    from skcath.backbones import PrandtlIshlinskii
+    from skcath.backbones._pi import pi_inverse_step
+
+    width = 3.0
+    theta, up, down = PrandtlIshlinskii.play(width, n_motors=1).pack_inverse()
+    rng = np.random.default_rng(0)
+    differ = {}
+    for band in (0.0, 1.0):
+        inverse, z_state, q = PlayInverse(width, dead_band=band), 0.0, 0.0
+        differ[band] = 0
+        for _ in range(1000):
+            z = z_state + (rng.normal(0.0, 0.4) if rng.random() < 0.5 else rng.normal(0.0, 5.0))
+            q_play = inverse.command(np.array([z]), np.array([z_state]), np.array([q]))[0]
+            # the PI inverse's state: its creep, its one play and its dead band at the played angle, the last command
+            q_pi = pi_inverse_step(theta, np.array([z_state, z_state, z_state, q]), 0, z, 0.1, up[0], down[0])
+            differ[band] += abs(q_pi - q_play) > 1e-9
+            q = q_play
+            z_state = play_kernel(z_state, q, width)
+    assert differ[0.0] == 0
+    assert differ[1.0] > 100  # the dead band holds small reversals that the PI inverse makes

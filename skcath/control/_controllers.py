@@ -15,6 +15,14 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
 from .. import _format as fmt
 from ..online import OnlineEstimator
 from ..online._sweep import check_sweep
+from ._compiled import (
+    EPS_DEG,
+    MODE_FEEDFORWARD,
+    MODE_INTERNAL_MODEL,
+    MODE_RESOLVED_RATE,
+    SOLVE_TOL_DEG,
+    CompiledStep,
+)
 from ._hysteresis import hysteresis_inverse
 from ._limits import MotorLimits, UnreachableTargetWarning, check_target, rate_limited, read_obs
 from ._model import ModelInverse, damped_solve
@@ -44,14 +52,24 @@ GRID_POINTS = {1: 61, 2: 25, 3: 11}
 GRID_MARGIN_MM = 0.25
 
 
-def _seed_grid(est, limits):
+def _seed_grid(view, limits):
     """Effective angles on a grid over the motor limits (deg) and the backbone's tips there (mm)."""
-    n = len(est.q_neutral_)
+    n = view.n_motors
     axes = [np.linspace(lo, hi, GRID_POINTS[min(n, 3)]) for lo, hi in zip(limits.low, limits.high)]
     z = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
     z = z[[limits.contains(row) for row in z]]
-    tips = np.array([est._backbone(*row) for row in z.tolist()], dtype=float).reshape(-1, 3)
+    tips = np.array([view.backbone(*row) for row in z.tolist()], dtype=float).reshape(-1, 3)
     return z, tips
+
+
+def _warn_unreachable(target, tip, miss, reach_tol_mm, stacklevel):
+    """Warn that ``target`` lies ``miss`` (mm) from the nearest reachable model tip ``tip``."""
+    warnings.warn(
+        f"target {np.round(target, 2).tolist()} mm lies {miss:.1f} mm from the nearest tip the "
+        f"model reaches within the motor limits ({np.round(tip, 2).tolist()} mm), more than "
+        f"reach_tol_mm={reach_tol_mm}; steering to that tip.",
+        UnreachableTargetWarning, stacklevel=stacklevel + 1,
+    )
 
 
 class _Controller(BaseEstimator):
@@ -91,9 +109,10 @@ class _Controller(BaseEstimator):
         t = X[fmt.TIME].to_numpy(dtype=float)
         self.dt_ = float(np.median(np.diff(t))) if len(t) > 1 else 0.1
         self.estimator_ = est
+        self._view = est._model_view()
         self.inverse_ = hysteresis_inverse(est, self._dead_band())
-        self.model_ = ModelInverse(est, self.limits_.project, eps_deg=1e-3, limits=self.limits_)
-        self._grid_z, self._grid_tips = _seed_grid(est, self.limits_)
+        self.model_ = ModelInverse(self._view, self.limits_.project, eps_deg=EPS_DEG)
+        self._grid_z, self._grid_tips = _seed_grid(self._view, self.limits_)
         self.command_ = self.limits_.project(q[-1])
         self._z_solution = self.command_.copy()
         self._torques = tuple(float(v) for v in est._last_sweep[n:])
@@ -102,7 +121,28 @@ class _Controller(BaseEstimator):
         self._limited = False
         self._issued = deque([self.command_.copy()] * self.latency, maxlen=max(self.latency, 1))
         self._reset_feedback()
+        self._compiled = CompiledStep(self, self._mode(), GRID_MARGIN_MM) if est.engine_ == "numba" else None
         return self
+
+    def _mode(self):
+        """The controller of the compiled step: :data:`~skcath.control._compiled.MODE_FEEDFORWARD`, ..."""
+        return MODE_FEEDFORWARD
+
+    def _step_compiled(self, target, obs, need_tracker):
+        """The step on the numba engine: the observation read and the estimator stepped, then one compiled call."""
+        sample, t, tip = read_obs(obs, self.estimator_.channels_, need_tracker)
+        self.estimate_ = self.estimator_.step(*sample, t=t)
+        step = self._compiled
+        miss = math.sqrt(step(target, self.estimate_ if tip is None else tip, sample))
+        self.aimed_ = step.aimed.copy()
+        self.command_ = step.command.copy()
+        self._limited = step.limited
+        if self._mode() != MODE_FEEDFORWARD:
+            self.correction_ = step.correction.copy()
+        if miss > self.reach_tol_mm:
+            self.n_unreachable_ += 1
+            _warn_unreachable(target - step.correction, self.aimed_, miss, self.reach_tol_mm, stacklevel=3)
+        return step.command.copy()
 
     def _reset_feedback(self):
         """Feedback state set by :meth:`start`; none for the feedforward."""
@@ -132,8 +172,8 @@ class _Controller(BaseEstimator):
         pending = list(self._issued)[-self.latency:] if self.latency else []
         self._effective = np.array(pending[-1] if pending else sample[:n], dtype=float)
         self.model_.begin([(*q.tolist(), *self._torques) for q in pending])
-        if est.play_width_ > 0.0:  # the played angles after the pending commands
-            self._effective = np.array(est.play_state_)
+        if self._view.play_width > 0.0:  # the played angles after the pending commands
+            self._effective = self._view.effective.copy()
         return self.estimate_, tip
 
     def _effective_state(self):
@@ -141,7 +181,7 @@ class _Controller(BaseEstimator):
         return self._effective
 
     def _solve(self, target, z0):
-        return self.model_.solve(target, z0, self._torques, max_iter=self.max_iter, tol_deg=1e-3,
+        return self.model_.solve(target, z0, self._torques, max_iter=self.max_iter, tol_deg=SOLVE_TOL_DEG,
                                  damping=self.damping)
 
     def _aim(self, target):
@@ -166,12 +206,7 @@ class _Controller(BaseEstimator):
         miss = math.sqrt(float(d @ d))
         if miss > self.reach_tol_mm:
             self.n_unreachable_ += 1
-            warnings.warn(
-                f"target {np.round(target, 2).tolist()} mm lies {miss:.1f} mm from the nearest tip the "
-                f"model reaches within the motor limits ({np.round(tip, 2).tolist()} mm), more than "
-                f"reach_tol_mm={self.reach_tol_mm}; steering to that tip.",
-                UnreachableTargetWarning, stacklevel=3,
-            )
+            _warn_unreachable(target, tip, miss, self.reach_tol_mm, stacklevel=3)
         self.aimed_ = tip
         return z, tip, J
 
@@ -295,6 +330,8 @@ class FeedforwardController(_Controller):
     def step(self, target, obs):
         self._check_started()
         target = check_target(target)
+        if self._compiled is not None:
+            return self._step_compiled(target, obs, False)
         self._observe(obs)
         try:
             z, _, _ = self._aim(target)
@@ -390,9 +427,14 @@ class FeedbackController(_Controller):
         # (the tip the model predicted, whether the command was limited) of the commands not yet observed
         self._aims = deque([(None, True)] * (self.latency + 1), maxlen=self.latency + 1)
 
+    def _mode(self):
+        return MODE_INTERNAL_MODEL if self.feedforward else MODE_RESOLVED_RATE
+
     def step(self, target, obs):
         self._check_started()
         target = check_target(target)
+        if self._compiled is not None:
+            return self._step_compiled(target, obs, self.close_on == "tracker")
         aimed_before = self._aims[0]  # the aim of the command the observation shows
         estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
         try:

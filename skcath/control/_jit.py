@@ -1,10 +1,16 @@
-"""The model's inverse compiled by numba: the solve of :class:`~skcath.control._model.ModelInverse`.
+"""The controller's step compiled by numba: one call from observation to command.
 
-Imported only for an estimator on the numba engine (it imports numba). The
-solve runs the estimator's compiled step (:data:`skcath.online._jit.step_kernel`)
-at candidate angles, restoring its state after each evaluation, exactly as
-:meth:`ModelInverse.solve <skcath.control._model.ModelInverse.solve>` does in
-Python, with the same steps and the same acceptance rule.
+Imported only for an estimator on the numba engine (it imports numba).
+:func:`control_step` does what the Python methods of the controllers do
+(:mod:`skcath.control._controllers`), with the same steps, acceptance rules
+and limits: it advances the model by the commands not observed yet, updates
+the feedback's correction, solves the model for the target (from the
+previous solution, then from the nearest seed of the grid), inverts the
+play, keeps the command within the motor and rate limits and queues it. The
+model is evaluated through the compiled look-ahead kernels of the estimator
+(:meth:`ModelView.compiled <skcath.online._model_view.ModelView.compiled>`).
+The controller's parameters and state live in one float array, laid out as
+this module names it (:func:`layout`).
 """
 
 from __future__ import annotations
@@ -13,28 +19,31 @@ import math
 
 import numpy as np
 
-from .._kernel import compiled
-from ..online._jit import step_kernel
-from ..online._layout import F_PLAY_WIDTH
+from .._kernel import compiled, offsets
+from ..online._model_view_jit import advance as _advance
+from ..online._model_view_jit import restore as _restore
+from ..online._model_view_jit import tip as _tip
+from ._compiled import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
+from ._hysteresis import TOL_DEG
 
-__all__ = ["solve_kernel"]
+__all__ = ["control_kernel", "control_step", "layout"]
+
+#: Scalars of the state array: parameters, then state; blocks of ``n_motors`` follow from ``S_BLOCKS``.
+(S_GAIN, S_DAMPING, S_EPS, S_TOL, S_MAX_ITER, S_MAX_STEP, S_WIDTH, S_BAND, S_RADIUS, S_MARGIN,
+ S_MODE, S_LATENCY, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_CORRECTION, S_AIMED,
+ S_BLOCKS) = offsets(*([1] * 15), 3, 3)
+#: Blocks of ``n_motors`` (deg): limits, last command, last solution, wanted angles, effective angles.
+B_LOW, B_HIGH, B_NEUTRAL, B_COMMAND, B_SOLUTION, B_WANTED, B_EFFECTIVE, N_BLOCKS = range(8)
 
 
-def _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, out):
-    """Model tip (mm) of the next sample at effective angles ``z``, into ``out``; the state restored.
+def layout(n_motors):
+    """Size of the state array and the offset of each block, ``{B_...: offset}``."""
+    return S_BLOCKS + N_BLOCKS * n_motors, {b: S_BLOCKS + b * n_motors for b in range(N_BLOCKS)}
 
-    ``a64`` holds the step's ``f`` first and ``anet`` its ``buf`` first
-    (:class:`~skcath.online._jit.JitStep`): ``f0`` and ``buf0`` are their saved states.
-    """
-    n = z.shape[0]
-    for j in range(n):
-        sample[j] = z[j]
-    for j in range(torques.shape[0]):
-        sample[n + j] = torques[j]
-    a64[F_PLAY_WIDTH] = 0.0
-    step_kernel(meta, a64, anet, w32, out, sample, False)
-    a64[: f0.shape[0]] = f0
-    anet[: buf0.shape[0]] = buf0
+
+def _block(s, b, n):
+    """Block ``b`` of the state array ``s`` (a view)."""
+    return s[S_BLOCKS + b * n : S_BLOCKS + (b + 1) * n]
 
 
 def _project(z, low, high, neutral, radius):
@@ -81,24 +90,27 @@ def _damped_step(J, r, mu, dz, A, b):
         dz[i] = s / A[i, i]
 
 
-def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
-    """The Levenberg-Marquardt solve; ``z``, ``tip`` and ``J`` are written in place."""
-    meta, a64, anet, w32 = arrays
-    low, high, neutral, radius = limits
-    eps, max_iter, tol, damping = settings
+def _solve(view, target, z, torques, s, tip, J):
+    """The Levenberg-Marquardt solve from ``z``; ``z``, ``tip`` and ``J`` are written in place.
+
+    As :meth:`ModelInverse.solve <skcath.control._model.ModelInverse.solve>`;
+    the limits and the settings are read from the state array ``s``.
+    """
     n = z.shape[0]
+    low, high, neutral = _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n)
+    radius, tol = s[S_RADIUS], s[S_TOL]
     sample = np.empty(n + torques.shape[0])
     trial_tip, r, dz, z_new = np.empty(3), np.empty(3), np.empty(n), np.empty(n)
     A, b = np.empty((n, n)), np.empty(n)
     _project(z, low, high, neutral, radius)
-    _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, tip)
+    _look(view, z, torques, sample, tip)
     cost = 0.0
     for k in range(3):
         r[k] = target[k] - tip[k]
         cost += r[k] * r[k]
-    _jacobian(arrays, f0, buf0, z, torques, eps, tip, J, sample, trial_tip)
-    mu = max(damping, 1e-6)
-    for _ in range(int(max_iter)):
+    _jacobian(view, z, torques, s[S_EPS], tip, J, sample, trial_tip)
+    mu = max(s[S_DAMPING], 1e-6)
+    for _ in range(int(s[S_MAX_ITER])):
         _damped_step(J, r, mu, dz, A, b)
         moved = 0.0
         for j in range(n):
@@ -108,7 +120,7 @@ def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
             moved = max(moved, abs(z_new[j] - z[j]))
         if moved < tol:
             break
-        _tip(meta, a64, anet, w32, f0, buf0, z_new, torques, sample, trial_tip)
+        _look(view, z_new, torques, sample, trial_tip)
         cost_new = 0.0
         for k in range(3):
             cost_new += (target[k] - trial_tip[k]) ** 2
@@ -119,30 +131,215 @@ def _solve(arrays, f0, buf0, target, z, torques, limits, settings, tip, J):
             for k in range(3):
                 tip[k] = trial_tip[k]
                 r[k] = target[k] - tip[k]
-            _jacobian(arrays, f0, buf0, z, torques, eps, tip, J, sample, trial_tip)
+            _jacobian(view, z, torques, s[S_EPS], tip, J, sample, trial_tip)
         else:
             mu *= 4.0
 
 
-def _jacobian(arrays, f0, buf0, z, torques, eps, tip, J, sample, out):
+def _look(view, z, torques, sample, out):
+    """The model's tip at effective angles ``z`` (the look-ahead kernel on the view's arrays)."""
+    meta, a64, anet, w32, saved_f, saved_buf, f0, buf0 = view
+    _tip(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, z, torques, sample, out)
+
+
+def _jacobian(view, z, torques, eps, tip, J, sample, out):
     """Forward-difference Jacobian (mm/deg) at ``z``, whose tip is ``tip``, into ``J``."""
-    meta, a64, anet, w32 = arrays
     for j in range(z.shape[0]):
         z[j] += eps
-        _tip(meta, a64, anet, w32, f0, buf0, z, torques, sample, out)
+        _look(view, z, torques, sample, out)
         z[j] -= eps
         for k in range(3):
             J[k, j] = (out[k] - tip[k]) / eps
 
 
-_helpers = {}
+def _aim(view, target, torques, s, grid_z, grid_tips, z, tip, J):
+    """Solve for ``target`` from the last solution, again from the nearest grid seed if closer.
+
+    As :meth:`_Controller._aim <skcath.control._controllers._Controller._aim>`:
+    ``z``, ``tip`` and ``J`` receive the solution, its tip and Jacobian;
+    returns the squared distance of the tip from the target (mm^2).
+    """
+    n = z.shape[0]
+    solution = _block(s, B_SOLUTION, n)
+    z[:] = solution
+    _solve(view, target, z, torques, s, tip, J)
+    miss2 = _distance2(target, tip)
+    margin = s[S_MARGIN]
+    if miss2 > margin:  # else no grid tip can be closer by the margin
+        best, best_d2 = 0, np.inf
+        for i in range(grid_tips.shape[0]):
+            d2 = _distance2(grid_tips[i], target)
+            if d2 < best_d2:
+                best, best_d2 = i, d2
+        if best_d2 + margin < miss2:
+            z2, tip2, J2 = grid_z[best].copy(), np.empty(3), np.empty(J.shape)
+            _solve(view, target, z2, torques, s, tip2, J2)
+            miss2_grid = _distance2(target, tip2)
+            if miss2_grid < miss2:
+                z[:], tip[:], J[:, :] = z2, tip2, J2
+                miss2 = miss2_grid
+    solution[:] = z
+    return miss2
 
 
-def solve_kernel():
-    """The compiled solve (loaded from numba's cache when a previous process compiled it)."""
-    if not _helpers:
+def _distance2(a, b):
+    """Squared distance (mm^2) of two tips, summed over x, y, z in order."""
+    total = 0.0
+    for k in range(3):
+        total += (a[k] - b[k]) ** 2
+    return total
+
+
+def _play_command(z_wanted, z_state, q_previous, width, dead_band, q):
+    """The play's inverse with its reversal dead band, into ``q``: as :meth:`PlayInverse.command
+    <skcath.control._hysteresis.PlayInverse.command>` (with ``width=0``: the wanted angles)."""
+    band = max(dead_band, TOL_DEG)
+    for j in range(q.shape[0]):
+        zj, sj, qj = z_wanted[j], z_state[j], q_previous[j]
+        tol_up, tol_down = (TOL_DEG, band) if qj >= sj else (band, TOL_DEG)
+        if zj > sj + tol_up:
+            q[j] = zj + width
+        elif zj < sj - tol_down:
+            q[j] = zj - width
+        else:
+            q[j] = min(max(qj, zj - width), zj + width)
+
+
+def _issue(s, z_wanted, issued):
+    """The command for the wanted effective angles: the play's inverse, the motor and rate limits.
+
+    As :meth:`_Controller._issue <skcath.control._controllers._Controller._issue>`:
+    the command goes to the block ``B_COMMAND`` and the queue ``issued``
+    (a ring of the last ``latency`` commands), ``S_LIMITED`` says whether a
+    limit changed it.
+    """
+    n = z_wanted.shape[0]
+    low, high, neutral = _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n)
+    command = _block(s, B_COMMAND, n)
+    z = z_wanted.copy()
+    _project(z, low, high, neutral, s[S_RADIUS])
+    q = np.empty(n)
+    _play_command(z, _block(s, B_EFFECTIVE, n), command, s[S_WIDTH], s[S_BAND], q)
+    limited_q = q.copy()
+    _project(limited_q, low, high, neutral, s[S_RADIUS])
+    limited = False
+    largest = 0.0
+    for j in range(n):
+        limited = limited or limited_q[j] != q[j]
+        largest = max(largest, abs(limited_q[j] - command[j]))
+    max_step = s[S_MAX_STEP]
+    if largest > max_step:  # the move scaled as a whole: its direction kept
+        limited = True
+        for j in range(n):
+            limited_q[j] = command[j] + (limited_q[j] - command[j]) * (max_step / largest)
+    command[:] = limited_q
+    s[S_LIMITED] = 1.0 if limited else 0.0
+    latency = int(s[S_LATENCY])
+    if latency > 0:
+        at = int(s[S_ISSUED_AT])
+        issued[at] = limited_q
+        s[S_ISSUED_AT] = (at + 1) % latency
+
+
+def _observe(view, s, issued, sample, torques):
+    """Advance the model by the commands not observed yet; the effective angles the command moves from."""
+    n = issued.shape[1]
+    latency = int(s[S_LATENCY])
+    pending = np.empty((max(latency, 1), n))
+    at = int(s[S_ISSUED_AT])
+    for k in range(latency):  # oldest first
+        pending[k] = issued[(at + k) % latency]
+    meta, a64, anet, w32, saved_f, saved_buf, f0, buf0 = view
+    scratch = np.empty(n + torques.shape[0])
+    effective = _block(s, B_EFFECTIVE, n)
+    _advance(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, pending, latency, torques, scratch,
+             np.empty(3), effective)
+    if s[S_WIDTH] > 0.0:  # the played angles after the pending commands, as the view gave them
+        return
+    if latency > 0:
+        effective[:] = pending[latency - 1]
+    else:
+        for j in range(n):
+            effective[j] = sample[j]
+
+
+def control_step(view, s, issued, aims, grid_z, grid_tips, target, measured, sample):
+    """One step of a controller, from the observed sample to the command (block ``B_COMMAND``).
+
+    Parameters
+    ----------
+    view : tuple of ndarray
+        The look-ahead arrays of the estimator (:meth:`ModelView.compiled
+        <skcath.online._model_view.ModelView.compiled>`), already stepped
+        with the observed sample.
+    s : ndarray
+        The controller's parameters and state (:func:`layout`); updated.
+    issued : ndarray of shape (max(latency, 1), n_motors)
+        Ring of the commands not observed yet (deg); updated.
+    aims : ndarray of shape (latency + 1, 4)
+        Ring of the feedback's aims not observed yet: the tip aimed at (mm)
+        and whether its command went out unlimited (1.0) or not (0.0); updated.
+    grid_z, grid_tips : ndarray of shape (n_seeds, n_motors), (n_seeds, 3)
+        The seeds of the solve: effective angles (deg) and the backbone's tips there (mm).
+    target : ndarray of shape (3,)
+        Wanted tip (mm).
+    measured : ndarray of shape (3,)
+        The tip the feedback compares with its aim (mm): the estimate or the tracker's.
+    sample : ndarray of shape (n_channels,)
+        The observed sample (deg, then the torques).
+
+    Returns
+    -------
+    miss2 : float
+        Squared distance from the (corrected) target of the tip aimed at (mm^2).
+    """
+    n = issued.shape[1]
+    torques = sample[n:]
+    _observe(view, s, issued, sample, torques)
+    mode = int(s[S_MODE])
+    z, tip, J = np.empty(n), np.empty(3), np.empty((3, n))
+    wanted = _block(s, B_WANTED, n)
+    correction = s[S_CORRECTION : S_CORRECTION + 3]
+    aimed = target.copy()
+    if mode == MODE_INTERNAL_MODEL:
+        oldest = int(s[S_AIMS_AT])
+        if aims[oldest, 3] > 0.0:  # the aim of the command the observation shows, unlimited
+            for k in range(3):
+                correction[k] = correction[k] + s[S_GAIN] * (measured[k] - aims[oldest, k] - correction[k])
+        for k in range(3):
+            aimed[k] = target[k] - correction[k]
+    miss2 = _aim(view, aimed, torques, s, grid_z, grid_tips, z, tip, J)
+    if mode == MODE_RESOLVED_RATE:
+        r, dz = np.empty(3), np.empty(n)
+        for k in range(3):
+            r[k] = tip[k] - measured[k]
+        _damped_step(J, r, s[S_DAMPING], dz, np.empty((n, n)), np.empty(n))
+        for j in range(n):
+            wanted[j] = wanted[j] + s[S_GAIN] * dz[j]
+        _project(wanted, _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n), s[S_RADIUS])
+    else:
+        wanted[:] = z
+    _issue(s, wanted, issued)
+    s[S_AIMED : S_AIMED + 3] = tip
+    if mode != MODE_FEEDFORWARD:
+        at = int(s[S_AIMS_AT])
+        aims[at, :3] = tip
+        aims[at, 3] = 1.0 - s[S_LIMITED]
+        s[S_AIMS_AT] = (at + 1) % aims.shape[0]
+    meta, a64, anet, w32, saved_f, saved_buf, f0, buf0 = view
+    _restore(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0)
+    return miss2
+
+
+_compiled_step = {}
+
+
+def control_kernel():
+    """The compiled :func:`control_step` (loaded from numba's cache when a previous process compiled it)."""
+    if not _compiled_step:
         g = globals()
-        for name in ("_tip", "_project", "_damped_step", "_jacobian"):
-            g[name] = compiled(g[name])  # the solve calls them compiled
-        _helpers["solve"] = compiled(_solve)
-    return _helpers["solve"]
+        for name in ("_project", "_damped_step", "_look", "_jacobian", "_solve", "_distance2", "_aim",
+                     "_play_command", "_issue", "_observe", "_block"):
+            g[name] = compiled(g[name])  # the step calls them compiled
+        _compiled_step["step"] = compiled(control_step)
+    return _compiled_step["step"]

@@ -1,20 +1,19 @@
 """The model's own step evaluated at candidate commands, and its inverse by Gauss-Newton.
 
-:class:`ModelInverse` reads the packed step of a started
-:class:`~skcath.online.OnlineEstimator` (the one function both engines run,
-:func:`~skcath.online._kernels.step`) and evaluates it at candidate effective
-motor angles from the estimator's present state, which it restores after
-every evaluation: the tip the model predicts for the next sample. The play
-in front of the backbone is bypassed there (its half-width set to 0 in the
-copy), so that the angles evaluated are the effective angles the backbone
-reads; the hysteresis is inverted afterwards (:mod:`skcath.control._hysteresis`).
+:class:`ModelInverse` evaluates a started :class:`~skcath.online.OnlineEstimator`
+through its look-ahead view (:class:`~skcath.online._model_view.ModelView`):
+the tip the model predicts for the next sample at candidate effective motor
+angles, from the estimator's present state (advanced by the commands not
+observed yet), the hysteresis in front of the backbone skipped, so that the
+angles evaluated are the effective angles the backbone reads; the hysteresis
+is inverted afterwards (:mod:`skcath.control._hysteresis`). This is the
+numpy engine's inverse and the reference of the compiled step
+(:mod:`skcath.control._jit`).
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-from ..online._layout import F_PLAY_WIDTH
 
 __all__ = ["ModelInverse", "damped_solve"]
 
@@ -46,60 +45,36 @@ class ModelInverse:
 
     Parameters
     ----------
-    estimator : OnlineEstimator
-        A started estimator; its state is read, and restored after every evaluation.
+    view : ModelView
+        The look-ahead view of a started estimator (``estimator._model_view()``).
     project : callable
         ``project(z) -> z``: the effective angles brought within the motor limits (deg).
     eps_deg : float
         Step of the finite differences (deg).
     """
 
-    def __init__(self, estimator, project, eps_deg, limits=None):
-        self.estimator = estimator
+    def __init__(self, view, project, eps_deg):
+        self.view = view
         self.project = project
         self.eps = float(eps_deg)
-        self._compiled = None
-        if limits is not None and estimator.engine_ == "numba":
-            from ._jit import solve_kernel
-
-            self._compiled = solve_kernel()
-            self._limits = (limits.low, limits.high, limits.neutral, limits.radius)
-        packed = estimator._packed
-        self._step = packed.call  # call(out, sample, check)
-        # the compiled solve steps the engine's arrays as the estimator's step does
-        self._arrays = (packed.meta, packed.a64, packed.anet, packed.w32) if self._compiled else None
-        self._f, self._buf = packed.f, packed.buf
-        self._f0, self._buf0 = packed.f.copy(), packed.buf.copy()
-        self.n_motors = len(estimator.q_neutral_)
-        self.n_evaluations = 0
+        self.n_motors = view.n_motors
 
     def begin(self, pending):
         """Advance the state by the commanded samples not observed yet; evaluations start from there.
 
         ``pending`` holds those samples (tuples of the channels), oldest
-        first, stepped with the play in front of the backbone. The
+        first, stepped with the hysteresis in front of the backbone. The
         estimator's own state is kept aside and restored by :meth:`end`.
         """
-        self._saved = (self._f.copy(), self._buf.copy())
-        out = np.empty(3)
-        for sample in pending:
-            self._step(out, tuple(sample), False)
-        np.copyto(self._f0, self._f)
-        np.copyto(self._buf0, self._buf)
+        self.view.advance(pending)
 
     def end(self):
         """Give the estimator back the state it had before :meth:`begin`."""
-        np.copyto(self._f, self._saved[0])
-        np.copyto(self._buf, self._saved[1])
+        self.view.restore()
 
     def tip(self, z, torques, out):
         """Model tip (mm) of the next sample at effective angles ``z`` (deg), into ``out``."""
-        self._f[F_PLAY_WIDTH] = 0.0
-        self._step(out, (*z.tolist(), *torques), False)
-        np.copyto(self._f, self._f0)
-        np.copyto(self._buf, self._buf0)
-        self.n_evaluations += 1
-        return out
+        return self.view.tip(z, torques, out)
 
     def jacobian(self, z, torques, tip):
         """Forward-difference Jacobian (3, n_motors) (mm/deg) at ``z``, whose tip is ``tip``."""
@@ -129,12 +104,6 @@ class ModelInverse:
         J : ndarray of shape (3, n_motors)
             Jacobian at ``z`` (mm/deg).
         """
-        if self._compiled is not None:
-            z, tip, J = np.array(z0, dtype=float), np.empty(3), np.empty((3, self.n_motors))
-            self._compiled(self._arrays, self._f0, self._buf0, np.asarray(target, dtype=float), z,
-                           np.asarray(torques, dtype=float), self._limits,
-                           (self.eps, float(max_iter), float(tol_deg), float(damping)), tip, J)
-            return z, tip, J
         z = self.project(np.asarray(z0, dtype=float))
         tip = self.tip(z, torques, np.empty(3))
         cost = float(np.sum((target - tip) ** 2))

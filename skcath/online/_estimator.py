@@ -915,6 +915,13 @@ class OnlineEstimator(BaseEstimator):
         out[:] = self._nominal_at(sample[: len(self._qn)])
         out += self._residual_last
 
+    def _model_view(self):
+        """Look-ahead evaluations of the started step for a controller: a :class:`~skcath.online._model_view.ModelView`."""
+        from ._model_view import ModelView
+
+        self._check_started()
+        return ModelView(self._packed, self._backbone)
+
     def _nominal_at(self, q):
         """The backbone's tip (mm) at one sample's motor angles, its play stepped at every sample."""
         width = getattr(self, "play_width_", 0.0)

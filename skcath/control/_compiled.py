@@ -1,0 +1,78 @@
+"""The controller's compiled step as the controllers call it: its arrays, built once at start.
+
+:class:`CompiledStep` lays out a started controller's parameters and state
+in the arrays of :func:`~skcath.control._jit.control_step` and calls it once
+per sample; the controllers use it on the numba engine
+(:mod:`skcath.control._controllers`), the Python methods otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["MODE_FEEDFORWARD", "MODE_INTERNAL_MODEL", "MODE_RESOLVED_RATE", "CompiledStep"]
+
+#: The controller of a compiled step: the feedforward, the feedback as an internal-model
+#: loop (``feedforward=True``), the feedback by resolved rate (``feedforward=False``).
+MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE = 0, 1, 2
+
+#: Step of the finite differences of the model's Jacobian (deg) and the solve's tolerance (deg).
+EPS_DEG = SOLVE_TOL_DEG = 1e-3
+
+
+class CompiledStep:
+    """The compiled step of one started controller.
+
+    Parameters
+    ----------
+    controller : FeedforwardController or FeedbackController
+        Started (its ``limits_``, ``dt_``, ``command_``, look-ahead view and seed grid set).
+    mode : int
+        :data:`MODE_FEEDFORWARD`, ``MODE_INTERNAL_MODEL`` or ``MODE_RESOLVED_RATE``.
+    margin : float
+        How much closer (mm^2) a seed's tip must be to restart the solve from it.
+    """
+
+    def __init__(self, controller, mode, margin):
+        from . import _jit
+
+        self._jit = j = _jit
+        view = controller._view
+        n = view.n_motors
+        size, at = j.layout(n)
+        s = np.zeros(size)
+        limits = controller.limits_
+        rate = controller.rate_limit
+        s[[j.S_GAIN, j.S_DAMPING, j.S_EPS, j.S_TOL, j.S_MAX_ITER, j.S_MAX_STEP, j.S_WIDTH, j.S_BAND,
+           j.S_RADIUS, j.S_MARGIN, j.S_MODE, j.S_LATENCY]] = (
+            getattr(controller, "gain", 0.0), controller.damping, EPS_DEG, SOLVE_TOL_DEG, controller.max_iter,
+            math.inf if rate is None else rate * controller.dt_, view.play_width,
+            controller._dead_band(), limits.radius, margin, mode, controller.latency)
+        for b, values in ((j.B_LOW, limits.low), (j.B_HIGH, limits.high), (j.B_NEUTRAL, limits.neutral),
+                          (j.B_COMMAND, controller.command_), (j.B_SOLUTION, controller.command_),
+                          (j.B_WANTED, controller.command_)):
+            s[at[b] : at[b] + n] = values
+        issued = np.tile(controller.command_, (max(controller.latency, 1), 1))
+        aims = np.zeros((controller.latency + 1, 4))  # no aim yet: nothing to compare with
+        arrays = view.compiled()[0]
+        self.state = s
+        self.command = s[at[j.B_COMMAND] : at[j.B_COMMAND] + n]
+        self.aimed = s[j.S_AIMED : j.S_AIMED + 3]
+        self.correction = s[j.S_CORRECTION : j.S_CORRECTION + 3]
+        self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips)
+        self._kernel = j.control_kernel()
+
+    @property
+    def limited(self):
+        """Whether a motor or rate limit changed the last command."""
+        return bool(self.state[self._jit.S_LIMITED])
+
+    def __call__(self, target, measured, sample):
+        """One step: the squared distance of the aimed tip from the (corrected) target (mm^2).
+
+        ``target`` and ``measured`` (mm) are float arrays of shape (3,),
+        ``sample`` the observed channels; the estimator has been stepped with them.
+        """
+        return self._kernel(*self._args, target, measured, np.array(sample))
