@@ -259,6 +259,17 @@ class OnlineEstimator(BaseEstimator):
         sweep sample (:func:`~skcath.backbones.play_operator` on the sweep).
         With a half-width of 0 the step skips the play (the backbone reads
         the motor angles as they are) and this stays as :meth:`start` set it.
+    hysteresis_ : PrandtlIshlinskii or None
+        With a backbone of ``hysteresis="pi"``: the run's Prandtl-Ishlinskii
+        hysteresis, identified on the sweep as the backbone's ``calibrate``
+        does, which the step runs in front of the backbone (``play_width_``
+        is then 0); None otherwise.
+    hysteresis_state_ : ndarray of shape (n_motors * (K + 2),) or None
+        State of ``hysteresis_`` after the last step (deg; per motor the
+        dead band's output, the ``K`` plays and the creep, as
+        :func:`~skcath.backbones.pi_step`): right after :meth:`start` or
+        :meth:`reset`, its state at the end of the sweep, run from rest at
+        the sweep's first row. None without it.
     rotation_ : ndarray of shape (3, 3) or None
         ``R_SB`` of the sweep (residual learners with ``frame="sweep"``), else None.
     context_ : ndarray of shape (context_size,) or None
@@ -501,7 +512,8 @@ class OnlineEstimator(BaseEstimator):
         * with a backbone of ``hysteresis="play"``, the play keeps its
           half-width ``play_width_`` and starts the motion from its state at
           the end of the new sweep (the new sweep's motor angles through the
-          kept play);
+          kept play); with ``hysteresis="pi"`` likewise the kept
+          ``hysteresis_``, run from rest at the new sweep's first row;
         * ``backbone_params_`` stays as it is, and the recurrent state
           restarts at zero (as after :meth:`reset`, from the last sample of
           the new sweep).
@@ -825,7 +837,9 @@ class OnlineEstimator(BaseEstimator):
             within 10 % of the model's step, and otherwise at its ticks (see
             *Notes*). Needed once the stream is ``resampled_``; ignored for
             a pipeline without a learned residual (the backbone has no time
-            scale).
+            scale), except with ``hysteresis="pi"``, whose creep then steps
+            by the time since the previous sample (without ``t``, by the
+            sweep's median time step, or at the model's rate by its step).
         out : ndarray of shape (3,), dtype float64, optional
             Written in place and returned; without it a new array is
             returned. Passing ``out`` keeps the loop free of allocations.

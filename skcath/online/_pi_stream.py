@@ -24,12 +24,30 @@ import math
 
 import numpy as np
 
+from .. import _format as fmt
 from .._kernel import kernel
-from ..backbones import PCCBackbone, PDLBackbone, PrandtlIshlinskii, pi_step, polynomial_tip
+from ..backbones import (
+    PCCBackbone,
+    PDLBackbone,
+    PrandtlIshlinskii,
+    pi_step,
+    play_operator,
+    polynomial_tip,
+)
 from ..backbones._backbone import _calibrate_run, _check_two
 from ._layout import F_DT, M_ANGLES, M_N_MOTORS, M_PI_BANDS, M_PI_STATE, M_PI_THETA
 
-__all__ = ["PIStep", "calibrate_pi", "pi_angles", "pi_spec", "run_from_rest"]
+__all__ = [
+    "PIStep",
+    "calibrate_pi",
+    "kept_angles",
+    "pi_angles",
+    "pi_spec",
+    "pi_step_of",
+    "run_from_rest",
+    "start_hysteresis",
+    "sweep_period",
+]
 
 
 @kernel
@@ -98,8 +116,7 @@ def calibrate_pi(backbone, sweep):
 
 
 def _reference(sweep):
-    from .. import _format as fmt
-
+    """The reference tip of the sweep's rows (n, 3), mm."""
     return np.ascontiguousarray(sweep.X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64))
 
 
@@ -176,8 +193,6 @@ def kept_angles(est, q, t):
     becomes the one the motion starts from (``_pi_start``), and the
     sweep's median time step ``_sweep_period``.
     """
-    from ..backbones import play_operator
-
     spec = getattr(est, "_pi_spec", None)
     if spec is None:
         return play_operator(q, getattr(est, "play_width_", 0.0))
