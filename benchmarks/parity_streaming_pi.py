@@ -12,7 +12,9 @@ with the samples' times ``t`` and without, and by its exported whole step
 largest difference (mm) over the motion samples: the step against the
 float64 ``predict`` (``module_.double()``), the ONNX graph against the
 float32 ``predict`` (as fitted), the size of the ONNX file (bytes) and the
-identified PI (weights, dead band, creep gain).
+identified PI (weights, dead band, creep gain). A second table gives the
+size of the ONNX file of the PDL backbone with ``hysteresis=None``,
+``"play"`` and ``"pi"``, alone and with the GRU (the same fits).
 
 Usage (from the repository root)::
 
@@ -93,6 +95,24 @@ def _case(backbone_name, kind, n_motors, n_motion, folder):
     return row
 
 
+def _sizes(folder):
+    """ONNX bytes of the PDL step (alone, with the GRU) by hysteresis."""
+    train, y = instrument(2, ["S02"], 200)
+    run, _ = instrument(2, ["S05"], 10)
+    sweep = run[(run["phase"] == "sweep").to_numpy()]
+    rows = []
+    for hysteresis in (None, "play", "pi"):
+        backbone = PDLBackbone(hysteresis=hysteresis).fit(train, y)
+        sizes = []
+        for residual in (NoResidual(), tiny_residual(GRUResidual, max_epochs=1)):
+            pipe = Pipeline([("backbone", backbone),
+                             ("residual", residual.fit(backbone.transform(train), y))])
+            est = OnlineEstimator(pipe, engine="numpy").start(sweep)
+            sizes.append(os.path.getsize(export(est, Path(folder) / "size.onnx")))
+        rows.append((hysteresis, *sizes))
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--motion", type=int, default=120, help="motion rows of the test run")
@@ -107,6 +127,10 @@ def main(argv=None):
             r = _case(*case, args.motion, folder)
             print(f"| {r[0]} | {r[1]:.1e} | {r[2]:.1e} | {r[3]:.1e} | {r[4]:,} | {r[5]} | "
                   f"{r[6]:.2f} | {r[7]:.3f} |", flush=True)
+        print("\n| PDL, hysteresis | ONNX bytes, backbone only | ONNX bytes, with the GRU |")
+        print("|---|---:|---:|")
+        for hysteresis, alone, gru in _sizes(folder):
+            print(f"| {hysteresis} | {alone:,} | {gru:,} |")
 
 
 if __name__ == "__main__":
