@@ -4,7 +4,8 @@ Backbones PDL, PCC and polynomial (one to three motors) with ``hysteresis="pi"``
 and a GRU, an MLP or no residual: the compiled and the numpy step match the
 float64 ``predict`` at 1e-6 mm on every motion sample, with and without the
 samples' times, and with uneven times that the creep must read; the
-exported ONNX step (run by onnxruntime) matches the float32 ``predict`` at
+the backbone's PI of a stream stepped at the model's ticks reads every
+sample; the exported ONNX step (run by onnxruntime) matches the float32 ``predict`` at
 1e-5 mm and the TorchScript archive the ONNX graph; ``reset``, ``resweep``
 (the kept PI over a new sweep), pickling and :mod:`skcath.persist` resume
 the stream bit for bit.
@@ -146,6 +147,22 @@ def test_creep_reads_the_samples_times(fitted, engine):
     # without the times the creep steps by the sweep's step, which these samples do not keep
     est.reset()
     assert np.abs(_stream(est, samples) - expected).max() > 100 * STEP_TOL_MM
+
+
+def test_stream_at_another_rate_steps_the_backbones_pi_at_every_sample(fitted):
+    """Motion at twice the model's rate: the stream ticks, and the backbone's PI reads every sample."""
+    d = fitted(("polynomial", "gru", 3))
+    run, motion = d["run"].copy(), d["motion"]
+    end = run.loc[~motion, "t"].iloc[-1]
+    run.loc[motion, "t"] = end + 0.5 * (run.loc[motion, "t"] - end)
+    nominal = d["pipe"]["backbone"].predict(run)[motion]
+    est = _on_engine(d["est"], "numpy")
+    samples, times = _samples(est, run, motion)
+    for sample, t, expected in zip(samples, times, nominal):
+        tip = est.step(*sample, t=t)
+        assert est.resampled_
+        # the tip is the backbone's at the sample plus the residual of the latest tick
+        assert_allclose(tip - est._residual_last, expected, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("case", [CASES[0], CASES[3]], ids=_id)
