@@ -35,7 +35,12 @@ Variants, all with the backbone included (the same calibration of the run):
   with one thread, the sample given and the state fed back;
 - ``online, MLP`` and ``online, backbone only``: the same loop for
   ``MLPResidual`` (default sizes) and ``NoResidual``, for scale, with each
-  engine.
+  engine;
+- with ``--hysteresis play pi``: ``online float64, hysteresis=KIND`` and
+  ``online backbone only, hysteresis=KIND``, the GRU float64 and the
+  backbone-only estimators again with ``PDLBackbone(hysteresis=KIND)`` in
+  front (the same fitted GRU; each compared with its own ``predict``), with
+  each engine.
 
 The numba step is compiled when numba's cache is empty and loaded from it
 otherwise, by ``start``, outside the timed loop (``compile_seconds_``). The
@@ -81,6 +86,7 @@ Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_streaming.py            # 20,000 steps per variant
     .venv/bin/python benchmarks/bench_streaming.py --steps 5000
+    .venv/bin/python benchmarks/bench_streaming.py --hysteresis play pi --no-cold-compile
     git worktree add /tmp/c262 c262cec
     .venv/bin/python benchmarks/bench_streaming.py --compare-to /tmp/c262 --steps 10000
 """
@@ -324,7 +330,23 @@ def _cold_compile(pipe, sweep):
     return tuple(float(v) for v in done.stdout.split())
 
 
-def _prepare(engines, full=True):
+def _with_hysteresis(pipes, X, kinds):
+    """The GRU and backbone-only pipelines again with ``PDLBackbone(hysteresis=kind)``, by kind.
+
+    The GRU residual is the one fitted on the backbone without hysteresis:
+    for the timing its weights only need to be real.
+    """
+    train = X["setting"].isin(TRAIN_SETTINGS).to_numpy()
+    out = {}
+    for kind in kinds:
+        backbone = PDLBackbone(hysteresis=kind).fit(X[train])
+        for name in ("gru", "none"):
+            out[f"{name}, hysteresis={kind}"] = Pipeline(
+                [("backbone", backbone), ("residual", pipes[name]["residual"])])
+    return out
+
+
+def _prepare(engines, full=True, hysteresis=()):
     """Fit the pipelines, start the estimators, make the other loops; a dict of all of it."""
     data = make_benchmark(n_catheters=1, n_runs=1, random_state=0)
     X, y = data.X, np.asarray(data.y)
@@ -334,6 +356,7 @@ def _prepare(engines, full=True):
         "mlp": _fit(MLPResidual(max_epochs=1, n_threads=1, random_state=0), X, y),
         "none": _fit(NoResidual(), X, y),
     }
+    pipes.update(_with_hysteresis(pipes, X, hysteresis))
     fit_s = time.perf_counter() - t0
     run = X[(X["setting"] == TEST_SETTING).to_numpy()]
     motion = (run["phase"] == "motion").to_numpy()
@@ -344,7 +367,11 @@ def _prepare(engines, full=True):
     for pipe, dtype, label in [("gru", "float64", "online float64"),
                                ("gru", "float32", "online float32"),
                                ("mlp", "float64", "online, MLP (float64)"),
-                               ("none", "float64", "online, backbone only")]:
+                               ("none", "float64", "online, backbone only"),
+                               *((f"{p}, hysteresis={kind}", "float64",
+                                  f"online {'float64' if p == 'gru' else 'backbone only'}, "
+                                  f"hysteresis={kind}")
+                                 for kind in hysteresis for p in ("gru", "none"))]:
         for engine in engines:
             name = f"{label}, {engine}"
             t0 = time.perf_counter()
@@ -385,6 +412,17 @@ def _parity(prep):
     for name, step in steppers.items():
         tips = np.array([step(*s) for s in samples])
         parity[name] = (np.abs(tips - pred32).max(), np.abs(tips - pred64).max())
+    for name, est in prep["estimators"].items():  # --hysteresis: each against its own predict
+        if "hysteresis=" in name:
+            pipe = est.pipeline
+            predicted = [pipe.predict(run)[motion]]
+            if hasattr(pipe["residual"], "module_"):
+                pipe64 = copy.deepcopy(pipe)
+                pipe64["residual"].module_.double()
+                predicted.append(pipe64.predict(run)[motion])
+            est.reset()
+            tips = np.array([est.step(*s) for s in samples])
+            parity[name] = tuple(np.abs(tips - p).max() for p in (predicted * 2)[:2])
     return parity
 
 
@@ -457,6 +495,9 @@ def main(argv=None):
     parser.add_argument("--compare-to", metavar="PATH",
                         help="time the numba rows of this checkout and of the checkout at PATH "
                              "back to back, each in a process of its own, in one table")
+    parser.add_argument("--hysteresis", nargs="+", choices=["play", "pi"], default=[],
+                        help="also time the GRU float64 and backbone-only estimators with "
+                             "PDLBackbone(hysteresis=KIND), for each KIND given")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.compare_to:
@@ -466,7 +507,7 @@ def main(argv=None):
     if args.worker:
         return _worker()
     has_numba = importlib.util.find_spec("numba") is not None
-    prep = _prepare(["numba", "numpy"] if has_numba else ["numpy"])
+    prep = _prepare(["numba", "numpy"] if has_numba else ["numpy"], hysteresis=args.hysteresis)
     cold = None
     if has_numba and not args.no_cold_compile:
         cold = _cold_compile(prep["pipes"]["gru"], prep["sweep"])

@@ -6,7 +6,8 @@ with dead band and creep; the stepping forms equal the row forms; the creep
 reads the times, not the sample count. The identification recovers a known
 PI from a sweep simulated through it; a sweep too flat or too short falls
 back to no hysteresis with a warning naming the run; a sweep without
-hysteresis is not fitted. The streaming estimator refuses the PI.
+hysteresis is not fitted. The streaming step with the PI is tested in
+test_online_pi.py.
 """
 
 import numpy as np
@@ -262,19 +263,6 @@ def test_default_backbones_have_no_hysteresis_columns(pcc_params):
     calibration = PDLBackbone().fit(X).calibrate(X)
     assert not any(c.startswith("pi_") for c in calibration.table.columns)
     assert "hysteresis" not in calibration
-
-
-def test_online_estimator_refuses_the_pi():
-    from sklearn.pipeline import Pipeline
-    from skcath.online import OnlineEstimator
-    from skcath.residuals import NoResidual
-
-    q = _sweep(40.0)
-    X = _recording(q, np.column_stack([q, np.full(len(q), 50.0)]))
-    pipe = Pipeline([("backbone", PCCBackbone(hysteresis="pi")), ("residual", NoResidual())])
-    pipe.fit(X, X[["ref_x", "ref_y", "ref_z"]].to_numpy())
-    with pytest.raises(ValueError, match="hysteresis='pi'"):
-        OnlineEstimator(pipe).start(X)
 
 
 def test_polynomial_sweep_calibration_with_pi(pcc_params):

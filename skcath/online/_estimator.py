@@ -37,6 +37,7 @@ from ..frames import _sweep_frame
 from ..residuals._context import sweep_context
 from ..sweep import _find_rays
 from ._fast import BackboneStep, NumpyStep
+from ._pi_stream import kept_angles, pi_step_of, start_hysteresis
 from ._pipeline import STEP_BACKBONES, check_online_pipeline
 from ._sample import as_real, real_sample
 from ._sweep import calibrate, check_sweep
@@ -258,6 +259,17 @@ class OnlineEstimator(BaseEstimator):
         sweep sample (:func:`~skcath.backbones.play_operator` on the sweep).
         With a half-width of 0 the step skips the play (the backbone reads
         the motor angles as they are) and this stays as :meth:`start` set it.
+    hysteresis_ : PrandtlIshlinskii or None
+        With a backbone of ``hysteresis="pi"``: the run's Prandtl-Ishlinskii
+        hysteresis, identified on the sweep as the backbone's ``calibrate``
+        does, which the step runs in front of the backbone (``play_width_``
+        is then 0); None otherwise.
+    hysteresis_state_ : ndarray of shape (n_motors * (K + 2),) or None
+        State of ``hysteresis_`` after the last step (deg; per motor the
+        dead band's output, the ``K`` plays and the creep, as
+        :func:`~skcath.backbones.pi_step`): right after :meth:`start` or
+        :meth:`reset`, its state at the end of the sweep, run from rest at
+        the sweep's first row. None without it.
     rotation_ : ndarray of shape (3, 3) or None
         ``R_SB`` of the sweep (residual learners with ``frame="sweep"``), else None.
     context_ : ndarray of shape (context_size,) or None
@@ -392,19 +404,14 @@ class OnlineEstimator(BaseEstimator):
         """:meth:`start` once the parameters are validated."""
         step_class = _step_class(self.engine)
         backbone, residual = check_online_pipeline(self.pipeline)
-        if getattr(backbone, "hysteresis", None) == "pi":
-            raise ValueError(
-                f"The streaming step does not run the hysteresis of {type(backbone).__name__} "
-                "(hysteresis='pi'); use hysteresis='play' or None for OnlineEstimator, or "
-                "predict the recordings with the pipeline."
-            )
         self._fingerprint = fitted_fingerprint(backbone, residual)
         sweep = check_sweep(sweep)  # the sweep's rows are checked here, once
         X, motors, torques, q, tau = sweep.X, sweep.motors, sweep.torques, sweep.q, sweep.tau
         if residual is not None:  # its checks of the motors and torques, before any work
             residual._check_torques(motors, torques)
             residual._check_motor_count(motors)
-        self.backbone_params_, nominal, self.play_width_ = calibrate(backbone, sweep)
+        self.backbone_params_, nominal, hysteresis = calibrate(backbone, sweep)
+        self.play_width_ = start_hysteresis(self, hysteresis, q, sweep.t)
         self.run_ = sweep.run
         self.channels_ = sweep.channels
         self._calibration_sweep = X[[*fmt.ID_COLUMNS, fmt.TIME, fmt.PHASE, *motors, *torques]]
@@ -469,7 +476,7 @@ class OnlineEstimator(BaseEstimator):
         weights, clip, use_torque = self._step_inputs
         # without a play (also when pickled before the play existed) the angles pass as they are
         backbone = BackboneStep(self.backbone_params_, getattr(self, "play_width_", 0.0),
-                                getattr(self, "_play_start", None))
+                                getattr(self, "_play_start", None), pi_step_of(self))
         n_channels = self._n_channels = len(self._channels())
         self._packed = step_class(backbone, weights, clip, use_torque, self.dtype, n_channels,
                                   self._qn, self._limit2)
@@ -478,6 +485,9 @@ class OnlineEstimator(BaseEstimator):
         self._last = self._packed.last  # updated by every step
         self.nominal_ = self._packed.nominal
         self.play_state_ = self._packed.play
+        self._pi, self._dt = backbone.pi, self._packed.dt
+        self.hysteresis_ = None if backbone.pi is None else backbone.pi.model
+        self.hysteresis_state_ = self._packed.pi_state
         self.engine_ = self._packed.engine
         self.compile_seconds_ = self._packed.compile_seconds
 
@@ -502,7 +512,8 @@ class OnlineEstimator(BaseEstimator):
         * with a backbone of ``hysteresis="play"``, the play keeps its
           half-width ``play_width_`` and starts the motion from its state at
           the end of the new sweep (the new sweep's motor angles through the
-          kept play);
+          kept play); with ``hysteresis="pi"`` likewise the kept
+          ``hysteresis_``, run from rest at the new sweep's first row;
         * ``backbone_params_`` stays as it is, and the recurrent state
           restarts at zero (as after :meth:`reset`, from the last sample of
           the new sweep).
@@ -619,8 +630,8 @@ class OnlineEstimator(BaseEstimator):
             q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
             run=run,
         )
-        # the kept play (none before the play existed, e.g. unpickled) over the new sweep
-        played = play_operator(q, getattr(self, "play_width_", 0.0))
+        # the kept play or PI (none before the play existed, e.g. unpickled) over the new sweep
+        played = kept_angles(self, q, sweep.t)
         nominal = _kept_nominal(self.backbone_params_, played)
         rotation = context = at_rate = None
         if residual is not None:
@@ -661,7 +672,8 @@ class OnlineEstimator(BaseEstimator):
     # taken at start and the running state, and loading packs the step again
     # from those (not from the pipeline, which may have been refit since)
     # and restores the state.
-    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_", "_backbone", "_out")
+    _RUNTIME = ("_packed", "_call", "_last", "nominal_", "play_state_", "_backbone", "_out",
+                "_pi", "_dt", "hysteresis_", "hysteresis_state_")
 
     def __getstate__(self):
         state = {k: v for k, v in super().__getstate__().items() if k not in self._RUNTIME}
@@ -672,6 +684,8 @@ class OnlineEstimator(BaseEstimator):
                 "nominal": np.array(self.nominal_),
                 "play": [float(v) for v in self.play_state_],
             }
+            if self._pi is not None:
+                state["_running"]["pi"] = np.array(self.hysteresis_state_)
         return state
 
     def __setstate__(self, state):
@@ -691,6 +705,8 @@ class OnlineEstimator(BaseEstimator):
         self.nominal_[:] = running["nominal"]
         if "play" in running:  # pickled before the play existed: no play, nothing to restore
             self.play_state_[:] = running["play"]
+        if "pi" in running:
+            self.hysteresis_state_[:] = running["pi"]
         self._warn_if_pipeline_changed("was unpickled")
 
     def reset(self):
@@ -717,6 +733,8 @@ class OnlineEstimator(BaseEstimator):
         self._tick = getattr(self, "_n_sweep_ticks", 0)
         self._residual_last = np.zeros(3)
         self._sample_play = getattr(self, "_play_start", None) or (0.0,) * len(self._qn)
+        self._t_step = self._t_prev  # when the packed step last stepped (the PI's creep)
+        self._sample_pi = None if self._pi is None else self._pi.start.copy()
         return self
 
     def _pipeline_changed(self):
@@ -819,7 +837,9 @@ class OnlineEstimator(BaseEstimator):
             within 10 % of the model's step, and otherwise at its ticks (see
             *Notes*). Needed once the stream is ``resampled_``; ignored for
             a pipeline without a learned residual (the backbone has no time
-            scale).
+            scale), except with ``hysteresis="pi"``, whose creep then steps
+            by the time since the previous sample (without ``t``, by the
+            sweep's median time step, or at the model's rate by its step).
         out : ndarray of shape (3,), dtype float64, optional
             Written in place and returned; without it a new array is
             returned. Passing ``out`` keeps the loop free of allocations.
@@ -871,7 +891,8 @@ class OnlineEstimator(BaseEstimator):
     def _check_time(self, t):
         """The time of a sample as a float, checked; None where the model has no rate."""
         if getattr(self, "rate_hz_", None) is None:  # also: pickled before rates were kept
-            return None
+            if t is None or getattr(self, "_pi", None) is None:
+                return None  # without the PI's creep the backbone has no time scale
         if t is None:
             raise ValueError(
                 f"This stream is stepped at the model's rate of {self.rate_hz_:.4g} Hz (its "
@@ -890,29 +911,43 @@ class OnlineEstimator(BaseEstimator):
         """:meth:`step` of a sample with its time: once per sample, or at the model's ticks."""
         call = self._call
         rate = self.rate_hz_
+        dt = self._dt  # the PI's time step, None without it
+        if rate is None:  # the PI without a learned residual: its creep by the sample's time
+            self._step_after(call, out, sample, t - self._t_prev)
+            self._t_prev = self._t_step = t
+            return
         if not self._ticking:
             if abs((t - self._t_prev) * rate - 1.0) <= RATE_TOLERANCE:
-                call(out, sample, False)
+                if dt is None:
+                    call(out, sample, False)
+                else:
+                    self._step_after(call, out, sample, t - self._t_prev)
                 self._residual_last = out - self.nominal_
-                self._t_prev = t
+                self._t_prev = self._t_step = t
                 return
             # from here on at the ticks, counted from the last sample stepped
             self._ticking = self.resampled_ = True
             self._tick0, self._tick = self._t_prev, 1
             self._x_prev = tuple(float(v) for v in self._last)
             self._sample_play = tuple(float(v) for v in self.play_state_)
+            if dt is not None:
+                self._sample_pi = np.array(self.hysteresis_state_)
         t_prev, x_prev = self._t_prev, self._x_prev
         reach = t + TICK_TOLERANCE / rate
         tick = self._tick0 + self._tick / rate
         while tick <= reach:
             a = min(max((tick - t_prev) / (t - t_prev), 0.0), 1.0)
             at = tuple(p + a * (c - p) for p, c in zip(x_prev, sample))
-            call(out, at, False)
+            if dt is None:
+                call(out, at, False)
+            else:
+                self._step_after(call, out, at, max(tick - self._t_step, 0.0))
+                self._t_step = tick
             self._residual_last = out - self.nominal_
             self._tick += 1
             tick = self._tick0 + self._tick / rate
+        out[:] = self._nominal_at(sample[: len(self._qn)], t - t_prev)
         self._t_prev, self._x_prev = t, sample
-        out[:] = self._nominal_at(sample[: len(self._qn)])
         out += self._residual_last
 
     def _model_view(self):
@@ -922,8 +957,19 @@ class OnlineEstimator(BaseEstimator):
         self._check_started()
         return ModelView(self._packed, self._backbone)
 
-    def _nominal_at(self, q):
-        """The backbone's tip (mm) at one sample's motor angles, its play stepped at every sample."""
+    def _step_after(self, call, out, sample, dt):
+        """The packed step of ``sample`` with the PI's creep stepped by ``dt`` (s), then its nominal step again."""
+        self._dt[0] = dt
+        call(out, sample, False)
+        self._dt[0] = self._pi.period
+
+    def _nominal_at(self, q, dt):
+        """The backbone's tip (mm) at one sample's motor angles, ``dt`` (s) after the previous sample.
+
+        Its play, or its PI, is stepped at every sample.
+        """
+        if self._dt is not None:
+            return self._backbone(*self._pi.step(self._sample_pi, q, dt))
         width = getattr(self, "play_width_", 0.0)
         if width > 0.0:
             q = tuple(play_kernel(z, v, width) for z, v in zip(self._sample_play, q))

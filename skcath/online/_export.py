@@ -112,7 +112,8 @@ def export_io(pipeline):
     inputs : dict
         Name -> shape, in the order the graph takes them. For an
         estimator: ``sample`` ``(1, n_channels)``, ``state`` ``(1,
-        state_size)``, ``reset`` ``(1,)`` (see :func:`export`). For a
+        state_size)``, ``reset`` ``(1,)``, and ``dt`` ``(1,)`` with
+        ``hysteresis="pi"`` (see :func:`export`). For a
         pipeline: ``features``
         ``(1, n_features)`` (``3N + 3`` for ``N`` motors, ``2N + 3`` without
         torques); ``rotation`` ``(3, 3)`` (``frame="sweep"``
@@ -150,7 +151,7 @@ def export(pipeline, path, format="onnx", *, dtype=None):
     """Write one streaming step to a file: an estimator's whole step, or a pipeline's network.
 
     **A started** :class:`OnlineEstimator` (``export(est, path)``): the
-    whole step, in float64, with the run's calibration, play, sweep frame,
+    whole step, in float64, with the run's calibration, play or PI, sweep frame,
     context and clip taken from ``start`` and written into the graph. The
     graph does what ``est.step`` does for an accepted sample, at the model's
     rate (one model step per call):
@@ -161,9 +162,12 @@ def export(pipeline, path, format="onnx", *, dtype=None):
     (motor angles ``q1 .. qN``, deg, then the torques ``tau1 .. tauN`` when
     the recordings have them); ``state`` (1, state_size) float64 is what the
     step carries (the previous motor angles, the played angles with
-    ``hysteresis="play"``, the GRU's hidden states); with ``reset`` (1,)
+    ``hysteresis="play"``, the Prandtl-Ishlinskii hysteresis's state with
+    ``hysteresis="pi"``, the GRU's hidden states); with ``reset`` (1,)
     bool set, the graph ignores ``state`` and starts from the state right
-    after ``start`` (as ``est.reset()``). ``tip`` (1, 3) float64 is the
+    after ``start`` (as ``est.reset()``). With ``hysteresis="pi"`` a fourth
+    input, ``dt`` (1,) float64, is the time since the previous sample (s),
+    which the hysteresis's creep reads: ``(sample, state, reset, dt)``. ``tip`` (1, 3) float64 is the
     tip in the base frame (mm); ``state_out`` is the state to pass back
     with the next sample; ``valid`` (1,) bool says whether ``step`` would
     accept the sample (all channels finite, motor angles within

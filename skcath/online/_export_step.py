@@ -2,15 +2,17 @@
 
 The graph does what :meth:`OnlineEstimator.step` does after its input
 checks (:func:`skcath.online._kernels.step`), in float64, from the arrays
-the estimator took from the pipeline at ``start``: the play in front of the
-backbone, the backbone's tip for the run's calibration, the step features,
+the estimator took from the pipeline at ``start``: the play or the
+Prandtl-Ishlinskii hysteresis in front of the backbone, the backbone's tip for the run's calibration, the step features,
 the residual network with the run's sweep frame and context folded into its
 first and last layers, the clip and the addition of the nominal tip. Each
 part is a small torch module mirroring one function of the numpy step;
 :func:`export_step` traces their composition.
 
 What the step carries from one sample to the next is one float64 vector,
-``state``: the previous motor angles, the played angles (with a play) and
+``state``: the previous motor angles, the played angles (with a play), the
+state of the Prandtl-Ishlinskii hysteresis (with ``hysteresis="pi"``, whose
+creep reads one more input, ``dt``, the time since the previous sample) and
 the GRU's hidden states. The graph also returns whether ``step`` would
 accept the sample (finite, within the sweep's range of motor angles).
 """
@@ -50,6 +52,7 @@ from ..backbones._pdl import (
     PDL_RHO0,
     _ray_blocks,
 )
+from ._export_pi import PIGraph
 from ._layout import BACKBONE_PCC, BACKBONE_PDL
 
 __all__ = ["STEP_FORMATS", "export_step", "step_io", "step_state"]
@@ -234,6 +237,8 @@ def _layout(est):
     parts = [("previous_angles", n)]
     if backbone.play_width > 0.0:
         parts.append(("played_angles", n))
+    if backbone.pi is not None:
+        parts.append(("hysteresis_state", backbone.pi.start.size))
     if weights is not None and weights.gru:
         H = weights.gru[0][1].shape[1]
         parts += [(f"hidden_{k}", H) for k in range(len(weights.gru))]
@@ -256,13 +261,18 @@ def step_state(est):
     -------
     state : ndarray of shape (1, state_size), float64
         ``[previous motor angles (N, deg), played angles (N, deg; with
-        hysteresis="play" only), hidden state of each GRU layer (H each)]``.
+        hysteresis="play" only), state of the Prandtl-Ishlinskii hysteresis
+        (N (K + 2), deg; with hysteresis="pi" only: per motor the dead band's
+        output, the K plays and the creep), hidden state of each GRU layer
+        (H each)]``.
     """
     est._check_started()
     parts, n = _layout(est)
     values = [np.asarray(est._last[:n], dtype=np.float64)]
     if any(name == "played_angles" for name, _ in parts):
         values.append(np.asarray(est.play_state_, dtype=np.float64))
+    if est._pi is not None:
+        values.append(np.asarray(est.hysteresis_state_, dtype=np.float64))
     values += [np.asarray(h, dtype=np.float64) for h in est._packed.hidden]
     return np.concatenate(values)[None]
 
@@ -281,6 +291,7 @@ class WholeStep(nn.Module):
         self.play = backbone.play_width > 0.0
         self.play_width = float(backbone.play_width)
         self.use_torque = bool(use_torque) and weights is not None
+        self.pi = None if backbone.pi is None else PIGraph(backbone.pi)
         self.tip = backbone_tip(backbone)
         self.network = None if weights is None else Network(weights)
         self.clip = None if math.isinf(clip) else float(clip)
@@ -288,25 +299,33 @@ class WholeStep(nn.Module):
         initial = [np.asarray(est._last_sweep[:n], dtype=np.float64)]
         if self.play:
             initial.append(np.asarray(backbone.play_start, dtype=np.float64))
+        if self.pi is not None:
+            initial.append(backbone.pi.start)
         initial += [np.zeros(size) for name, size in parts if name.startswith("hidden")]
         self.register_buffer("initial", _const(np.concatenate(initial)[None]))
         self.register_buffer("q_neutral", _const(est._qn))
         self.limit2 = float(est._limit2)
         self.eval()
 
-    def forward(self, sample, state, reset):
+    def forward(self, sample, state, reset, dt=None):
         n = self.n_motors
         state = torch.where(reset.unsqueeze(1), self.initial, state)
         q = sample[:, :n]
         previous = state[:, :n]
         at = n
         angles = q
+        new_state = [q]
         if self.play:  # play_kernel: min(max(z, q - w), q + w)
             played = torch.minimum(torch.maximum(state[:, n : 2 * n], q - self.play_width),
                                    q + self.play_width)
             angles, at = played, 2 * n
+            new_state.append(played)
+        if self.pi is not None:  # pi_angles, the creep stepped by dt
+            size = self.pi.n_motors * (self.pi.k + 2)
+            angles, pi_state = self.pi(q, state[:, at : at + size], dt)
+            at += size
+            new_state.append(pi_state)
         nominal = self.tip(angles)
-        new_state = [q] if not self.play else [q, played]
         tip = nominal
         if self.network is not None:
             x = [q, q - previous]
@@ -338,7 +357,9 @@ def step_io(est):
     inputs : dict
         Name -> shape, in the order the graph takes them: ``sample``
         ``(1, n_channels)`` (float64, the channels of ``channels_``),
-        ``state`` ``(1, state_size)`` (float64), ``reset`` ``(1,)`` (bool).
+        ``state`` ``(1, state_size)`` (float64), ``reset`` ``(1,)`` (bool),
+        and with ``hysteresis="pi"`` ``dt`` ``(1,)`` (float64, the time since
+        the previous sample, s, which the hysteresis's creep reads).
     outputs : dict
         ``tip`` ``(1, 3)`` (float64, mm), ``state_out`` ``(1, state_size)``
         (float64), ``valid`` ``(1,)`` (bool).
@@ -347,6 +368,8 @@ def step_io(est):
     parts, _ = _layout(est)
     size = sum(s for _, s in parts)
     inputs = {"sample": (1, len(est.channels_)), "state": (1, size), "reset": (1,)}
+    if est._pi is not None:
+        inputs["dt"] = (1,)
     outputs = {"tip": (1, 3), "state_out": (1, size), "valid": (1,)}
     return inputs, outputs
 
@@ -354,7 +377,8 @@ def step_io(est):
 def step_metadata(est):
     """What a caller needs to know about the exported step, as strings (the model's metadata)."""
     parts, n = _layout(est)
-    return {
+    pi = {} if est._pi is None else {"skcath.dt_s": json.dumps(est._pi.period)}
+    return {**pi,
         "skcath.channels": json.dumps(list(est.channels_)),
         "skcath.n_motors": str(n),
         "skcath.state_layout": json.dumps([[name, size] for name, size in parts]),
@@ -378,6 +402,8 @@ def export_step(est, path, format="onnx"):
         model.initial.clone(),
         torch.tensor([True]),
     )
+    if model.pi is not None:
+        examples += (torch.tensor([est._pi.period], dtype=_F64),)
     path = os.fspath(path)
     metadata = step_metadata(est)
     with torch.no_grad(), warnings.catch_warnings():

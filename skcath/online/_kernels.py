@@ -3,7 +3,8 @@
 :func:`step` does a whole step of :meth:`~skcath.online.OnlineEstimator.step`
 after the input checks: the play in front of the backbone
 (:func:`~skcath.backbones.play_kernel`, for a backbone with
-``hysteresis="play"``), the backbone's nominal tip for the played motor
+``hysteresis="play"``) or the Prandtl-Ishlinskii hysteresis
+(:func:`~skcath.online._pi_stream.pi_angles`, ``hysteresis="pi"``), the backbone's nominal tip for the played motor
 angles (its tip kernel, :func:`~skcath.backbones.pcc_kernel`,
 :func:`~skcath.backbones.pdl_kernel` or
 :func:`~skcath.backbones.polynomial_kernel`), the step features
@@ -89,6 +90,7 @@ from ._layout import (
     RESIDUAL_GRU,
     RESIDUAL_NONE,
 )
+from ._pi_stream import pi_angles
 
 __all__ = ["BackboneStep", "step"]
 
@@ -472,8 +474,10 @@ def step(meta, f, theta, w, w32, buf, out, sample, check):
         The motor angles ``q1 .. qN`` (deg), finite and in range, then the
         drive torques ``tau1 .. tauN`` (finite) when the recordings have
         them. The backbone reads the angles played (a half-width of 0
-        leaves them as they are, and the play is skipped); the step features
-        read them as they are.
+        leaves them as they are, and the play is skipped), or with the
+        Prandtl-Ishlinskii hysteresis its effective angles
+        (:func:`~skcath.online._pi_stream.pi_angles`, the creep stepped by
+        ``f[F_DT]``); the step features read them as they are.
     check : bool
         Whether to check the sample first (:func:`accepted`): a sample that
         fails changes nothing (neither ``out`` nor the state of the run).
@@ -495,6 +499,8 @@ def step(meta, f, theta, w, w32, buf, out, sample, check):
         for j in range(n):
             f[played + j] = play_kernel(f[played + j], sample[j], width)
             f[angles + j] = f[played + j]
+    elif width < 0.0:  # the Prandtl-Ishlinskii hysteresis (PI_FLAG)
+        pi_angles(meta, f, sample)
     else:
         for j in range(n):
             f[angles + j] = sample[j]
@@ -548,6 +554,10 @@ class BackboneStep:
         Played motor angles of the last sweep sample (deg), one per motor,
         where the play starts the motion; unused with a half-width of 0.
         None means zeros.
+    pi : PIStep or None, default=None
+        The Prandtl-Ishlinskii hysteresis in front of the backbone
+        (:class:`~skcath.online._pi_stream.PIStep`), in place of the play;
+        None without it.
 
     Attributes
     ----------
@@ -557,11 +567,11 @@ class BackboneStep:
         Number of motors the backbone reads: 2 for PCC and PDL.
     theta : ndarray
         The packed parameters (``params.pack()``).
-    play_width, play_start
+    play_width, play_start, pi
         As given.
     """
 
-    def __init__(self, params, play_width=0.0, play_start=None):
+    def __init__(self, params, play_width=0.0, play_start=None, pi=None):
         if isinstance(params, PCCParams):
             self.code, self._kernel, self.n_motors = BACKBONE_PCC, pcc_kernel, 2
         elif isinstance(params, PDLParams):
@@ -575,6 +585,7 @@ class BackboneStep:
         if play_start is None:
             play_start = (0.0,) * self.n_motors
         self.play_start = tuple(float(v) for v in play_start)
+        self.pi = pi
         self.params = params
         self.theta = params.pack()
         self._theta = self.theta.tolist()

@@ -8,13 +8,19 @@ from six arrays made once by :class:`PackedStep` when the run starts:
   (``HEAD_*``), each holding matrix records (``MAT_*``);
 * ``f`` (float64): the nominal tip of the last step, the clip and the
   half-width of the play operator in front of the backbone (0 without
-  hysteresis) and the square of the motor range accepted (``F_*``); then,
+  hysteresis, negative for the Prandtl-Ishlinskii hysteresis), the square of
+  the motor range accepted and the time since the previous step (``F_*``); then,
   sized by the number of motors ``N`` at the offsets ``meta[M_LAST]``,
   ``meta[M_PLAY]``, ``meta[M_ANGLES]``: the last accepted sample ``(q1 ..
   qN, tau1 .. tauN)`` (``N`` values without torques), the state of the play
   (``N``) and the motor angles the backbone reads (``N``); then float64
   scratch for the compiled nonlinearities at ``meta[M_SCRATCH]`` and the
-  neutral motor angles (``N``) at ``meta[M_NEUTRAL]``;
+  neutral motor angles (``N``) at ``meta[M_NEUTRAL]``; with the
+  Prandtl-Ishlinskii hysteresis its packed parameters
+  (:meth:`~skcath.backbones.PrandtlIshlinskii.pack`) at ``meta[M_PI_THETA]``,
+  its dead band up then down (``N`` each) at ``meta[M_PI_BANDS]`` and its
+  state (``K + 2`` per motor, :func:`~skcath.backbones.pi_step`) at
+  ``meta[M_PI_STATE]``;
 * ``theta`` (float64): the backbone's packed parameters
   (:meth:`~skcath.backbones.PCCParams.pack`,
   :meth:`~skcath.backbones.PDLParams.pack`,
@@ -35,7 +41,7 @@ import numpy as np
 
 from .._kernel import offsets
 
-__all__ = ["FlatStore", "MatrixStore", "PackedStep"]
+__all__ = ["FlatStore", "MatrixStore", "PackedStep", "PI_FLAG"]
 
 # kinds of backbone and residual (meta[M_BACKBONE], meta[M_RESIDUAL])
 BACKBONE_PCC, BACKBONE_PDL, BACKBONE_POLYNOMIAL = 0, 1, 2
@@ -50,10 +56,13 @@ RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
 # last sample, of the play's state, of the backbone's angles, of the scratch and
 # of the neutral motor angles; the size of f and of buf (where an engine that
 # stores them together, :class:`~skcath.online._jit.JitStep`, puts theta after f
-# and w after buf); whether the compiled matrix products fuse their multiply-adds
+# and w after buf); whether the compiled matrix products fuse their multiply-adds;
+# the offsets in f of the Prandtl-Ishlinskii hysteresis's parameters, dead bands
+# and state (0 without it)
 (M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
  M_N_HEAD, M_RESULT, M_N_SCRATCH, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
- M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_FUSED, M_HEADER) = offsets(*(1,) * 22)
+ M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_FUSED, M_PI_THETA, M_PI_BANDS, M_PI_STATE,
+ M_HEADER) = offsets(*(1,) * 25)
 
 # matrix record: rows, columns, columns of the first block, then for each of
 # the two column blocks whether it is stored in w32 and its offset (FlatStore)
@@ -70,11 +79,15 @@ GRU_N_IN, GRU_VECTOR, GRU_GATES, GRU_CAND, GRU_RECORD = offsets(1, 1, MAT_RECORD
 # tanh follows, the matrix [b, W]
 HEAD_SRC, HEAD_DST, HEAD_TANH, HEAD_MATRIX, HEAD_RECORD = offsets(1, 1, 1, MAT_RECORD)
 
-# f: nominal tip of the last step (3), clip (1), half-width of the play (1, deg),
-# the square of the largest distance of accepted motor angles from the neutral
-# angles (1, deg^2); the regions sized by the motors follow from F_MOTORS
-# (offsets in meta)
-F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_LIMIT2, F_MOTORS = offsets(3, 1, 1, 1)
+# f: nominal tip of the last step (3), clip (1), half-width of the play (1, deg;
+# 0 without hysteresis, PI_FLAG with the Prandtl-Ishlinskii hysteresis), the
+# square of the largest distance of accepted motor angles from the neutral
+# angles (1, deg^2), the time since the previous step (1, s; read by the PI's
+# creep); the regions sized by the motors follow from F_MOTORS (offsets in meta)
+F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_LIMIT2, F_DT, F_MOTORS = offsets(3, 1, 1, 1, 1)
+#: ``f[F_PLAY_WIDTH]`` of a step that runs the Prandtl-Ishlinskii hysteresis in
+#: place of the play (any negative value does).
+PI_FLAG = -1.0
 
 
 class _Arena:
@@ -182,7 +195,8 @@ class PackedStep:
     backbone : BackboneStep
         The backbone of the run: its kind, its packed calibration, its
         number of motors ``N`` and its play (half-width and the played
-        angles of the last sweep sample).
+        angles of the last sweep sample) or its Prandtl-Ishlinskii
+        hysteresis (``backbone.pi``, a :class:`~skcath.online._pi_stream.PIStep`).
     weights : StepWeights or None
         The residual's folded weights (:func:`~skcath.online._weights.step_weights`),
         or None for the backbone alone.
@@ -218,6 +232,12 @@ class PackedStep:
         Last accepted sample ``(q1 .. qN, tau1 .. tauN)``; a view of ``f``.
     play : ndarray of shape (N,)
         Played motor angles of the last step (deg); a view of ``f``.
+    pi_state : ndarray of shape (N (K + 2),) or None
+        State of the Prandtl-Ishlinskii hysteresis (``backbone.pi``), a view
+        of ``f``; None without it.
+    dt : ndarray of shape (1,) or None
+        The time step (s) the hysteresis's creep reads at the next step
+        (``f[F_DT]``), a view of ``f``; None without it.
     compile_seconds : float
         Time taken to compile the step (s).
     """
@@ -250,13 +270,21 @@ class PackedStep:
             n_scratch = max(3 * int(header[M_HIDDEN]), *(W.shape[0] for W, _ in weights.head))
         header[M_N_SCRATCH] = n_scratch
         header[M_NEUTRAL] = header[M_SCRATCH] + 2 * n_scratch
+        pi = self._pi = getattr(backbone, "pi", None)
         header[M_THETA] = header[M_NEUTRAL] + n_motors
+        if pi is not None:
+            header[[M_PI_THETA, M_PI_BANDS, M_PI_STATE, M_THETA]] = np.add(
+                header[M_THETA], offsets(pi.theta.size, pi.bands.size, pi.start.size))
         self.meta = np.concatenate([header, np.asarray(gru + head, dtype=np.int64)])
         self.f = np.zeros(header[M_THETA])
-        self.f[header[M_NEUTRAL] :] = 0.0 if neutral is None else neutral
+        self.f[header[M_NEUTRAL] : header[M_NEUTRAL] + n_motors] = 0.0 if neutral is None else neutral
         self.f[F_LIMIT2] = limit2
         self.f[F_CLIP] = clip
         self.f[F_PLAY_WIDTH] = backbone.play_width
+        if pi is not None:
+            self.f[F_PLAY_WIDTH] = PI_FLAG
+            self.f[F_DT] = pi.period
+            self.f[header[M_PI_THETA] : header[M_PI_STATE]] = np.r_[pi.theta, pi.bands]
         self._play_start = backbone.play_start
         self.theta = backbone.theta
         self.w, self.w32 = store.arrays()
@@ -268,6 +296,11 @@ class PackedStep:
         self.last = self.f[header[M_LAST] : header[M_LAST] + n_channels]
         self.play = self.f[header[M_PLAY] : header[M_PLAY] + n_motors]
         self.play[:] = self._play_start
+        self.pi_state = self.dt = None
+        if pi is not None:
+            self.pi_state = self.f[header[M_PI_STATE] : header[M_THETA]]
+            self.pi_state[:] = pi.start
+            self.dt = self.f[F_DT : F_DT + 1]
         self.call = self._bind()
 
     #: Whether the matrix products fuse their multiply-adds (``meta[M_FUSED]``;
@@ -323,9 +356,13 @@ class PackedStep:
     def reset(self, last_sample):
         """Zero hidden state; ``last_sample`` becomes the previous sample.
 
-        The play goes back to its state after the sweep.
+        The play and the Prandtl-Ishlinskii hysteresis go back to their
+        states after the sweep.
         """
         for h in self.hidden:
             h[:] = 0.0
         self.last[:] = last_sample
         self.play[:] = self._play_start
+        if self._pi is not None:
+            self.pi_state[:] = self._pi.start
+            self.dt[0] = self._pi.period

@@ -22,6 +22,7 @@ import pandas as pd
 from .. import _format as fmt
 from .._sweep_end import N_SWEEP_ATTR
 from .._validation import check_recordings, motor_columns
+from ._pi_stream import calibrate_pi
 
 __all__ = ["CheckedSweep", "calibrate", "check_sweep"]
 
@@ -98,8 +99,12 @@ def calibrate(backbone, sweep):
     """The backbone calibrated on a :class:`CheckedSweep`, as its ``calibrate`` does for the run.
 
     Returns the run's parameters, the nominal tip of every sweep row (n, 3)
-    (mm) and the half-width of the play (deg, 0 without hysteresis).
+    (mm) and the half-width of the play (deg, 0 without hysteresis), or with
+    ``hysteresis="pi"`` the run's :class:`~skcath.backbones.PrandtlIshlinskii`
+    (:func:`~skcath.online._pi_stream.calibrate_pi`).
     """
+    if getattr(backbone, "hysteresis", None) == "pi":
+        return calibrate_pi(backbone, sweep)
     given = sweep.X.attrs.get(N_SWEEP_ATTR, {})
     ref = np.ascontiguousarray(sweep.X[list(fmt.REFERENCE_COLUMNS)].to_numpy(dtype=np.float64))
     tip, params, width = backbone._calibrate_sweep(
