@@ -7,8 +7,10 @@ run's sweep (:data:`skcath.protocol.ADAPTED_BACKBONE`) and the GRU residual
 of :func:`skcath.protocol.make_learner`, pretrained with the schedule's
 ``model_params`` and ``pretrain_params`` (``--schedule quick``, the
 default, or ``full``; the schedule's first seed) on every run of every
-setting of the other units of ``make_benchmark(mechanism=...)`` (C1-C4, the
-``reproduce`` job's data; the steered unit ``--catheter`` left out). The
+setting of the other units of ``make_benchmark(mechanism=...,
+random_state=seed)`` (C1-C4, the ``reproduce`` job's data at ``--seed 0``;
+the steered unit ``--catheter`` left out; ``--train-runs K``: the first K
+repeats of each setting only). The
 fitted pipeline is saved with :func:`skcath.persist.save` under ``--cache``
 (default: the skcath data folder's ``steering`` folder) and loaded on the
 next run. ``--residual none`` takes ``NoResidual`` instead of the GRU (the
@@ -105,20 +107,23 @@ DIAGNOSTIC = "closed on the tracker, no rate limit"
 RECORD_DELAY = 2
 
 
-def _cache_file(cache, mechanism, residual, schedule, catheter, train_runs):
+def _cache_file(cache, bench_seed, mechanism, residual, schedule, catheter, train_runs):
+    """The model's file: named by everything its training depends on (the benchmark's seed when not 0)."""
     name = f"steering-{mechanism}-{residual}-{schedule.name if residual == 'gru' else 'none'}-C{catheter}"
     runs = "" if train_runs is None else f"-R{train_runs}"
-    return Path(cache) / f"{name}{runs}-seed{schedule.seeds[0]}.skcath"
+    bench = "" if bench_seed == 0 else f"-benchmark{bench_seed}"
+    return Path(cache) / f"{name}{runs}{bench}-seed{schedule.seeds[0]}.skcath"
 
 
-def protocol_pipeline(bench, mechanism, catheter, residual, schedule, cache, train_runs=None):
+def protocol_pipeline(bench, mechanism, catheter, residual, schedule, cache, train_runs=None, bench_seed=0):
     """The protocol's estimator for held-out unit ``catheter``, loaded from ``cache`` or trained there.
 
     Trained on every run of the benchmark's other units (``train_runs``: on
-    their first that many repeats of each setting only); returns the fitted
-    pipeline and the seconds its training (or loading) took.
+    their first that many repeats of each setting only; ``bench_seed``: the
+    seed ``bench`` was made with); returns the fitted pipeline and the
+    seconds its training (or loading) took.
     """
-    path = _cache_file(cache, mechanism, residual, schedule, catheter, train_runs)
+    path = _cache_file(cache, bench_seed, mechanism, residual, schedule, catheter, train_runs)
     start = time.perf_counter()
     if path.exists():
         return persist.load(path), time.perf_counter() - start
@@ -383,7 +388,8 @@ def summary(rows, floors):
           "| closed (tracker) mm | floor mm |")
     keys = dict.fromkeys((r["mechanism"], r["setting"], r["task"]) for r in rows)
     for mech, setting, task in keys:
-        sel = {r["controller"]: r for r in rows if (r["mechanism"], r["setting"], r["task"]) == (mech, setting, task)}
+        sel = {r["controller"]: r for r in rows
+               if (r["mechanism"], r["setting"], r["task"]) == (mech, setting, task)}
         cl, pcc = sel.get("skcath closed loop (estimate)"), sel.get("PCC inverse, open loop")
         ff, tr = sel.get("skcath feedforward"), sel.get("closed on the tracker")
         if cl is None or pcc is None:
@@ -456,7 +462,8 @@ def time_steps(n_steps, seed):
 def parse_args():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the play mechanism and setting S05 only")
-    parser.add_argument("--seed", type=int, default=0, help="the rig's benchmark seed and the reach targets")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the benchmark (the training data and the rig) and of the reach targets")
     parser.add_argument("--mechanisms", nargs="+", default=None, choices=("play", "bouc_wen", "dahl_creep"))
     parser.add_argument("--settings", nargs="+", default=None, help="shaft settings of the rig")
     parser.add_argument("--catheter", type=int, default=3,
@@ -507,9 +514,9 @@ def main():
     schedule = get_schedule(args.schedule)
     rows, floors = [], {}
     for mechanism in mechanisms:
-        bench = make_benchmark(mechanism=mechanism)
+        bench = make_benchmark(mechanism=mechanism, random_state=args.seed)
         pipe, seconds = protocol_pipeline(bench, mechanism, args.catheter, args.residual, schedule, cache,
-                                          args.train_runs)
+                                          args.train_runs, args.seed)
         print(f"\n{mechanism}: the model trained or loaded in {seconds:.0f} s", flush=True)
         for setting in settings:
             floors[mechanism, setting] = estimator_floor(pipe, bench, args.catheter, setting)
