@@ -1,37 +1,62 @@
 """The controllers of skcath.control in closed loop on the simulated rig, per hysteresis mechanism.
 
-Data: for each mechanism (``play``, ``bouc_wen``, ``dahl_creep``) the
-simulated benchmark of two catheters, one run per setting
-(``make_benchmark(n_catheters=2, n_runs=1, mechanism=...)``, cached in the
-skcath data folder), trains ``Pipeline([("backbone",
-PDLBackbone(hysteresis="play")), ("residual", GRUResidual(max_epochs=3,
-module__hidden_size=32))])``. The closed loop runs on a held-out unit
-(``SimulatedCatheter(catheter=3, ...)``, not in the training data) in
-held-out runs of shaft settings S05 and S12 (``--quick``: S05 only), with the
-tracker on (only the tracker-closed controller reads it).
+The model: the estimator the evaluation protocol gives for a unit it never
+saw, its sweep-adapted catheter-held-out method (``PDL+GRU+adapt (LOCO)``
+of :data:`skcath.protocol.METHODS`): PDL with the play identified on each
+run's sweep (:data:`skcath.protocol.ADAPTED_BACKBONE`) and the GRU residual
+of :func:`skcath.protocol.make_learner`, pretrained with the schedule's
+``model_params`` and ``pretrain_params`` (``--schedule quick``, the
+default, or ``full``; the schedule's first seed) on every run of every
+setting of the other units of ``make_benchmark(mechanism=...,
+random_state=seed)`` (C1-C4, the ``reproduce`` job's data at ``--seed 0``;
+the steered unit ``--catheter`` left out; ``--train-runs K``: the first K
+repeats of each setting only). The
+fitted pipeline is saved with :func:`skcath.persist.save` under ``--cache``
+(default: the skcath data folder's ``steering`` folder) and loaded on the
+next run. ``--residual none`` takes ``NoResidual`` instead of the GRU (the
+backbone with the play alone). Beside it the script prints the model's own
+error on the held-out unit's benchmark runs of each steered setting (RMS
+over the motion rows against the noise-free tip, mean over the runs): the
+floor a loop on the estimate cannot beat.
 
-Tasks (:func:`skcath.datasets.run_task` on the rig's sweep): reach and hold
-six targets for 5 s each, a circle at 2 and at 10 mm/s, a figure-eight at
-5 mm/s. Scores (:func:`skcath.datasets.task_scores`): RMS and 95th
-percentile of the true tip error (mm), median settling time of the reach
-targets (s; below 2 mm until the next target, inf when never held), and
-the RMS of the streamed estimate's error on the same run (the estimate of
-each record against its true tip): the estimator's own error on the motion
-the controller made.
+The closed loop runs on the held-out unit (``SimulatedCatheter(catheter=3,
+...)``, ``--catheter``) in settings S05 and S12 (``--quick``: the play,
+S05), tracker on (only the tracker-closed controller reads it). Tasks
+(:func:`skcath.datasets.run_task` on the rig's sweep): reach and hold six
+targets for 5 s each, a circle at 2 and at 10 mm/s, a figure-eight at
+5 mm/s.
+
+Scores, every error over the same samples: RMS and 95th percentile of the
+true tip error (mm; :func:`skcath.datasets.task_scores` for the whole task),
+the median settling time of the reach targets (s; below 2 mm until the next
+target, inf when never held), ``est.``: the RMS error of the streamed
+estimate of each record against its true tip on the same samples of the
+same run (the estimator's own error on the motion the controller made; the
+record of a sample reaches the controller two samples after its command),
+and ``tracker``: the RMS of the tracker's measured tip against the true tip
+there. The reach task is also scored in two phases: ``transit``, the first
+``--transit-s`` seconds after each new target (the rate-limited move), and
+``hold``, the rest.
 
 Controllers:
 
+- ``sweep lookup``: the motor angles of the sweep sample whose tracked tip
+  is nearest the target (no model, no hysteresis compensation);
 - ``PCC inverse, open loop`` / ``PDL inverse, open loop``:
   ``FeedforwardController`` of a pipeline of the backbone alone (no play, no
-  residual; PCC calibrated on the run's sweep, PDL fitted on the training
-  data);
-- ``skcath feedforward``: ``FeedforwardController`` of the trained pipeline;
+  residual), calibrated on the run's sweep;
+- ``skcath feedforward``: ``FeedforwardController`` of the model;
 - ``skcath closed loop (estimate)``: ``FeedbackController(close_on="estimate")``;
 - ``closed on the tracker``: ``FeedbackController(close_on="tracker")``,
-  the bound that a tracker in the loop gives.
+  the bound that a tracker in the loop gives;
+- with ``--diagnose``, ``closed on the tracker, no rate limit``; the
+  script then also prints, for the feedback loops, their error split into
+  the model's error that the correction does not cancel and the solve's
+  miss of the wanted tip, with the model's error itself and its change over
+  the loop's delay (see ``feedback_terms``).
 
-All run with ``latency=1`` (the rig's timing), the sweep's motor range as
-limits and a rate limit of 60 deg/s. The time of one controller step is
+All run with ``latency=1`` (the rig's timing) and, except the lookup and
+the last one, a rate limit of 60 deg/s. The time of one controller step is
 timed with ``time.perf_counter`` around ``step`` inside the runs, next to the
 time of the estimator's own step on the same observations (a fresh
 ``OnlineEstimator`` of the same pipeline stepping the recorded samples), on
@@ -41,33 +66,95 @@ the same engine.
 each controller and of the estimator alone on the same samples, on the
 numba engine and the fast path (observations as tuples), for a pipeline of
 PDL with the play and ``NoResidual`` (see ``time_steps``).
+``--rig-timing N`` times the rig itself first: ``SimulatedCatheter.reset``
+and N ``step`` calls with the tracker off and on (wall and CPU time).
 
 Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]
-[--mechanisms ...] [--settings ...] [--timing N]``.
+[--mechanisms ...] [--settings ...] [--residual {none,gru}] [--schedule
+{quick,full}] [--cache DIR] [--diagnose] [--rig-timing N] [--timing N]``.
 """
 
 import argparse
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 from sklearn.pipeline import Pipeline
 
+from skcath import persist
 from skcath.backbones import PCCBackbone, PDLBackbone
 from skcath.control import FeedbackController, FeedforwardController, UnreachableTargetWarning
 from skcath.datasets import (
     SimulatedCatheter,
     circle_task,
     figure_eight_task,
+    get_data_home,
     make_benchmark,
     reach_task,
     run_task,
     task_scores,
 )
+from skcath.metrics import per_run_rmse
 from skcath.online import OnlineEstimator
-from skcath.residuals import GRUResidual
+from skcath.protocol import ADAPTED_BACKBONE, ADAPTED_METHOD, LEARNER_COLUMNS, get_schedule, make_learner
+from skcath.residuals import NoResidual
 
 RATE_LIMIT = 60.0  # deg/s
+#: The controller that ``--diagnose`` adds.
+DIAGNOSTIC = "closed on the tracker, no rate limit"
+#: Samples between a command and the record of the sample it moved (the rig's timing).
+RECORD_DELAY = 2
+
+
+def _cache_file(cache, bench_seed, mechanism, residual, schedule, catheter, train_runs):
+    """The model's file: named by everything its training depends on (the benchmark's seed when not 0)."""
+    name = f"steering-{mechanism}-{residual}-{schedule.name if residual == 'gru' else 'none'}-C{catheter}"
+    runs = "" if train_runs is None else f"-R{train_runs}"
+    bench = "" if bench_seed == 0 else f"-benchmark{bench_seed}"
+    return Path(cache) / f"{name}{runs}{bench}-seed{schedule.seeds[0]}.skcath"
+
+
+def protocol_pipeline(bench, mechanism, catheter, residual, schedule, cache, train_runs=None, bench_seed=0):
+    """The protocol's estimator for held-out unit ``catheter``, loaded from ``cache`` or trained there.
+
+    Trained on every run of the benchmark's other units (``train_runs``: on
+    their first that many repeats of each setting only; ``bench_seed``: the
+    seed ``bench`` was made with); returns the fitted pipeline and the
+    seconds its training (or loading) took.
+    """
+    path = _cache_file(cache, bench_seed, mechanism, residual, schedule, catheter, train_runs)
+    start = time.perf_counter()
+    if path.exists():
+        return persist.load(path), time.perf_counter() - start
+    train = (bench.X["catheter"] != f"C{catheter}").to_numpy()
+    if train_runs is not None:
+        repeat = bench.runs.set_index("run")["repeat"]
+        train = train & (bench.X["run"].map(repeat).astype(int) <= train_runs).to_numpy()
+    X, y = bench.X[train], np.asarray(bench.y)[train]
+    backbone = PDLBackbone(**ADAPTED_BACKBONE).fit(X)
+    X_learner = backbone.transform(X)[list(LEARNER_COLUMNS)]
+    if residual == "gru":
+        learner = make_learner(ADAPTED_METHOD, random_state=schedule.seeds[0], n_threads=1,
+                               **schedule.model_params, **schedule.pretrain_params)
+    else:
+        learner = NoResidual()
+    pipe = Pipeline([("backbone", backbone), ("residual", learner.fit(X_learner, y))])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    persist.save(pipe, path)
+    return pipe, time.perf_counter() - start
+
+
+def estimator_floor(pipe, bench, catheter, setting):
+    """RMS (mm) of the model on the held-out unit's benchmark runs of ``setting``, against the true tip.
+
+    Over the motion rows of each run, then the mean over the runs.
+    """
+    rows = ((bench.X["catheter"] == f"C{catheter}") & (bench.X["setting"] == setting)).to_numpy()
+    if not rows.any():  # a unit the benchmark does not hold
+        return np.nan
+    X = bench.X[rows]
+    return float(np.mean(per_run_rmse(np.asarray(bench.y_true)[rows], pipe.predict(X), X)))
 
 
 class SweepFitted:
@@ -88,11 +175,26 @@ class SweepFitted:
         return command
 
 
+class SweepLookup:
+    """Naive open-loop baseline: the motor angles of the sweep sample whose tracked tip is nearest the target."""
+
+    def start(self, sweep):
+        tracked = sweep[["ref_x", "ref_y", "ref_z"]].notna().all(axis=1).to_numpy()
+        motors = [c for c in sweep.columns if c.startswith("q") and c[1:].isdigit()]
+        self.tips_ = sweep[["ref_x", "ref_y", "ref_z"]].to_numpy(dtype=float)[tracked]
+        self.q_ = sweep[motors].to_numpy(dtype=float)[tracked]
+        return self
+
+    def step(self, target, obs):
+        return self.q_[np.argmin(np.linalg.norm(self.tips_ - target, axis=1))]
+
+
 class Timed:
     """A controller whose ``step`` is timed; it keeps the observations it was given."""
 
     def __init__(self, controller):
         self.controller, self.seconds, self.observations = controller, [], []
+        self.aimed, self.corrections = [], []
 
     def start(self, sweep):
         self.controller.start(sweep)
@@ -104,27 +206,27 @@ class Timed:
         command = self.controller.step(target, obs)
         self.seconds.append(time.perf_counter() - t0)
         self.observations.append(obs)
-        self.estimate_ = self.controller.estimate_
+        self.estimate_ = getattr(self.controller, "estimate_", None)
+        self.aimed.append(getattr(self.controller, "aimed_", None))
+        self.corrections.append(getattr(self.controller, "correction_", None))
         return command
 
 
-def registry(pipe, X_train):
+def registry(pipe, diagnose=False):
     """Controller factories: name -> factory() of an unstarted controller."""
     common = {"rate_limit": RATE_LIMIT, "latency": 1}
-    pdl = Pipeline([("backbone", PDLBackbone().fit(X_train))])
-    return {
+    out = {
+        "sweep lookup": SweepLookup,
         "PCC inverse, open loop": lambda: SweepFitted(PCCBackbone, **common),
-        "PDL inverse, open loop": lambda: FeedforwardController(pdl, **common),
+        "PDL inverse, open loop": lambda: SweepFitted(PDLBackbone, **common),
         "skcath feedforward": lambda: FeedforwardController(pipe, **common),
         "skcath closed loop (estimate)": lambda: FeedbackController(pipe, **common),
         "closed on the tracker": lambda: FeedbackController(pipe, close_on="tracker", **common),
     }
-
-
-def fit_pipeline(X, y, seed):
-    backbone = PDLBackbone(hysteresis="play").fit(X)
-    residual = GRUResidual(max_epochs=3, module__hidden_size=32, n_threads=1, random_state=seed)
-    return Pipeline([("backbone", backbone), ("residual", residual.fit(backbone.transform(X), y))])
+    if diagnose:
+        out[DIAGNOSTIC] = lambda: FeedbackController(
+            pipe, close_on="tracker", latency=1)
+    return out
 
 
 def tasks_of(sweep, seed):
@@ -134,6 +236,90 @@ def tasks_of(sweep, seed):
         ("circle 10 mm/s", circle_task(sweep, speed_mm_s=10.0)),
         ("figure-eight 5 mm/s", figure_eight_task(sweep, speed_mm_s=5.0)),
     ]
+
+
+def phases(task, transit_s):
+    """The samples each score reads: name -> mask over the task's samples.
+
+    Every view keeps only the scored samples whose record reached the
+    controller (all but the last ``RECORD_DELAY``), so that the controller's
+    error and the estimator's are over the same samples. A reach task also
+    gets ``transit`` (the first ``transit_s`` seconds of each target) and
+    ``hold`` (the rest).
+    """
+    n = len(task.target)
+    seen = np.asarray(task.scored, dtype=bool) & (np.arange(n) < n - RECORD_DELAY)
+    out = {"": seen}
+    if task.changes:
+        transit = np.zeros(n, dtype=bool)
+        for first in task.changes:
+            transit[first:first + int(round(transit_s * task.rate_hz))] = True
+        out[" transit"], out[" hold"] = seen & transit, seen & ~transit
+    return out
+
+
+def _rms(values):
+    """RMS of the finite values (NaN if none)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else np.nan
+
+
+def run_errors(result, observations):
+    """Per sample: the true tip's error, the estimate's error and the tracker's error (mm), NaN where unseen.
+
+    Sample ``i``'s record is the observation given with command ``i + RECORD_DELAY``.
+    """
+    n, d = len(result.error), RECORD_DELAY
+    est, tracker = np.full(n, np.nan), np.full(n, np.nan)
+    if result.estimate is not None:
+        est[:-d] = np.linalg.norm(result.estimate[d:] - result.tip[:-d], axis=1)
+    seen = np.full(n, np.nan)
+    measured = np.array([[o.get(c, np.nan) for c in "xyz"] for o in observations[d:]], dtype=float)
+    tracker[:-d] = np.linalg.norm(measured - result.tip[:-d], axis=1)
+    seen[:-d] = np.linalg.norm(measured - result.target[:-d], axis=1)
+    return {"true": np.asarray(result.error, dtype=float), "est": est, "tracker": tracker, "seen": seen}
+
+
+def score_run(result, observations, transit_s):
+    """One dict of scores per view of the task (see ``phases``), every error over the view's samples."""
+    errors = run_errors(result, observations)
+    settling = task_scores(result)["settling_s"]
+    out = []
+    for view, mask in phases(result.task, transit_s).items():
+        true = errors["true"][mask]
+        out.append({
+            "view": view, "rms": _rms(true), "p95": float(np.percentile(true, 95)),
+            "settle": settling if view == "" else np.nan,
+            **{key: _rms(errors[key][mask]) for key in ("est", "tracker", "seen")},
+        })
+    return out
+
+
+def feedback_terms(result, timed):
+    """The true tip's error of an internal-model loop split in two, per sample (mm), or None.
+
+    With ``a`` the model's tip aimed at (``aimed_``), ``c`` the correction
+    (``correction_``) and ``w = target - c`` the wanted tip, the error
+    ``tip - target`` is ``(tip - a - c) + (a - w)``: the model's error at the
+    commanded tip that the correction does not cancel, and the solve's miss
+    of the wanted tip (a wanted tip off the model's reachable surface).
+    Also the model's error ``tip - a`` itself and its change over the
+    loop's delay (``RECORD_DELAY`` samples), which a correction measured that
+    late cannot follow.
+    """
+    if any(c is None for c in timed.corrections) or any(a is None for a in timed.aimed):
+        return None
+    aimed, corr = np.array(timed.aimed, dtype=float), np.array(timed.corrections, dtype=float)
+    model_error = result.tip - aimed
+    change = np.full(len(aimed), np.nan)
+    change[RECORD_DELAY:] = np.linalg.norm(model_error[RECORD_DELAY:] - model_error[:-RECORD_DELAY], axis=1)
+    return {
+        "uncorrected": np.linalg.norm(model_error - corr, axis=1),
+        "solve miss": np.linalg.norm(aimed - (result.target - corr), axis=1),
+        "model error": np.linalg.norm(model_error, axis=1),
+        "change over delay": change,
+    }
 
 
 def estimator_seconds(pipe, timed):
@@ -146,50 +332,90 @@ def estimator_seconds(pipe, timed):
     return (time.perf_counter() - t0) / len(samples)
 
 
-def run_mechanism(mechanism, settings, seed):
-    """Rows of the table for one mechanism."""
-    bench = make_benchmark(n_catheters=2, n_runs=1, mechanism=mechanism, random_state=seed)
-    pipe = fit_pipeline(bench.X, np.asarray(bench.y), seed)
-    factories = registry(pipe, bench.X)
+def run_setting(pipe, factories, mechanism, setting, args):
+    """Rows of the table for one mechanism in one setting of the held-out unit."""
+    rig = SimulatedCatheter(catheter=args.catheter, setting=setting, mechanism=mechanism, tracker=True,
+                            random_state=args.seed)
     rows = []
-    for setting in settings:
-        rig = SimulatedCatheter(catheter=3, setting=setting, mechanism=mechanism, tracker=True,
-                                random_state=seed)
-        sweep = rig.reset()
-        for task_name, task in tasks_of(sweep, seed):
-            for name, factory in factories.items():
-                timed = Timed(factory())
-                result = run_task(rig, timed, task)
-                scores = task_scores(result)
-                est_err = np.linalg.norm(result.estimate[2:] - result.tip[:-2], axis=1)
-                step_us = 1e6 * float(np.median(timed.seconds))
-                est_us = 1e6 * estimator_seconds(pipe, timed) if name.startswith(("skcath", "closed")) else np.nan
-                rows.append((mechanism, setting, task_name, name, scores["rms_mm"], scores["p95_mm"],
-                             scores["settling_s"], float(np.sqrt(np.mean(est_err**2))), step_us, est_us))
+    for task_name, task in tasks_of(rig.reset(), args.seed):
+        for name, factory in factories.items():
+            timed = Timed(factory())
+            result = run_task(rig, timed, task)
+            step_us = 1e6 * float(np.median(timed.seconds))
+            model_step = name.startswith(("skcath", "closed"))
+            est_us = 1e6 * estimator_seconds(pipe, timed) if model_step else np.nan
+            terms = feedback_terms(result, timed) if args.diagnose else None
+            for scores, mask in zip(score_run(result, timed.observations, args.transit_s),
+                                    phases(task, args.transit_s).values()):
+                if terms is not None:
+                    scores["terms"] = {key: _rms(value[mask]) for key, value in terms.items()}
+                rows.append({"mechanism": mechanism, "setting": setting, "task": task_name + scores.pop("view"),
+                             "controller": name, **scores, "step_us": step_us, "est_us": est_us,
+                             "clipped": result.n_clipped})
                 print(_format(rows[-1]), flush=True)
     return rows
 
 
-HEADER = ("mechanism", "setting", "task", "controller", "RMS mm", "p95 mm", "settle s",
-          "est. RMS mm", "step us", "est. step us")
+HEADER = ("mechanism", "setting", "task", "controller", "RMS mm", "p95 mm", "settle s", "est. mm",
+          "tracker mm", "seen mm", "step us", "est. step us")
 
 
 def _format(row):
-    return (f"| {row[0]:10s} | {row[1]:4s} | {row[2]:19s} | {row[3]:29s} | {row[4]:6.2f} | {row[5]:6.2f} "
-            f"| {row[6]:6.1f} | {row[7]:6.2f} | {row[8]:7.0f} | {row[9]:7.0f} |")
+    return (f"| {row['mechanism']:10s} | {row['setting']:4s} | {row['task']:19s} | {row['controller']:36s} "
+            f"| {row['rms']:6.2f} | {row['p95']:6.2f} | {row['settle']:5.1f} | {row['est']:6.2f} "
+            f"| {row['tracker']:5.2f} | {row['seen']:5.2f} | {row['step_us']:7.0f} | {row['est_us']:7.0f} |")
 
 
-def summary(rows):
-    """Per mechanism and task kind: the ratios the goals name."""
-    print("\nratios (mean over settings): closed loop (estimate) RMS / PCC open-loop RMS, "
-          "/ estimator RMS on the same run")
-    for mech in dict.fromkeys(r[0] for r in rows):
-        for task in dict.fromkeys(r[2] for r in rows):
-            sel = [r for r in rows if r[0] == mech and r[2] == task]
-            cl = np.mean([r[4] for r in sel if r[3] == "skcath closed loop (estimate)"])
-            pcc = np.mean([r[4] for r in sel if r[3] == "PCC inverse, open loop"])
-            est = np.mean([r[7] for r in sel if r[3] == "skcath closed loop (estimate)"])
-            print(f"| {mech:10s} | {task:19s} | {cl / pcc:5.2f} | {cl / est:5.2f} |")
+def print_terms(rows):
+    """The split of the feedback loops' error (``feedback_terms``), RMS over each view's samples (mm)."""
+    print("\nthe feedback's true tip error split: uncorrected model error + solve miss; the model error "
+          "itself and its change over the loop's delay; the tracker's own error (RMS, mm)")
+    print("| mechanism | setting | task | controller | RMS | uncorrected | solve miss | model error "
+          "| change over delay | tracker |")
+    for r in rows:
+        if "terms" in r:
+            t = r["terms"]
+            print(f"| {r['mechanism']} | {r['setting']} | {r['task']} | {r['controller']} | {r['rms']:.2f} "
+                  f"| {t['uncorrected']:.2f} | {t['solve miss']:.2f} | {t['model error']:.2f} "
+                  f"| {t['change over delay']:.2f} | {r['tracker']:.2f} |")
+
+
+def summary(rows, floors):
+    """Per mechanism, setting and task view: the ratios the goals name, both errors over the same samples."""
+    print("\nclosed loop (estimate) RMS / PCC open-loop RMS (goal <= 0.5), / the estimator's RMS on the "
+          "same samples (goal <= 1.1); tracker-closed RMS; the model's floor on the unit's benchmark runs")
+    print("| mechanism | setting | task | closed (est.) mm | / PCC | est. mm | / est. | feedforward / PCC "
+          "| closed (tracker) mm | floor mm |")
+    keys = dict.fromkeys((r["mechanism"], r["setting"], r["task"]) for r in rows)
+    for mech, setting, task in keys:
+        sel = {r["controller"]: r for r in rows
+               if (r["mechanism"], r["setting"], r["task"]) == (mech, setting, task)}
+        cl, pcc = sel.get("skcath closed loop (estimate)"), sel.get("PCC inverse, open loop")
+        ff, tr = sel.get("skcath feedforward"), sel.get("closed on the tracker")
+        if cl is None or pcc is None:
+            continue
+        print(f"| {mech:10s} | {setting:4s} | {task:19s} | {cl['rms']:5.2f} | {cl['rms'] / pcc['rms']:5.2f} "
+              f"| {cl['est']:5.2f} | {cl['rms'] / cl['est']:5.2f} "
+              f"| {ff['rms'] / pcc['rms'] if ff else np.nan:5.2f} | {tr['rms'] if tr else np.nan:5.2f} "
+              f"| {floors[mech, setting]:5.2f} |")
+
+
+def time_rig(n_steps, catheter, setting):
+    """Seconds per step of the rig, tracker off and on, along a slow random walk of the motors."""
+    rng = np.random.default_rng(0)
+    path = np.clip(np.cumsum(rng.normal(0.0, 1.0, size=(n_steps, 2)), axis=0), -50.0, 50.0)
+    out = {}
+    for tracker in (False, True):
+        rig = SimulatedCatheter(catheter, setting, tracker=tracker)
+        start = time.perf_counter()
+        rig.reset()
+        reset_s = time.perf_counter() - start
+        start, cpu = time.perf_counter(), time.process_time()
+        for command in path:
+            rig.step(command)
+        out[tracker] = (reset_s, (time.perf_counter() - start) / n_steps,
+                        (time.process_time() - cpu) / n_steps)
+    return out
 
 
 def time_steps(n_steps, seed):
@@ -233,28 +459,81 @@ def time_steps(n_steps, seed):
     return out
 
 
-def main():
+def parse_args():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the play mechanism and setting S05 only")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the benchmark (the training data and the rig) and of the reach targets")
     parser.add_argument("--mechanisms", nargs="+", default=None, choices=("play", "bouc_wen", "dahl_creep"))
     parser.add_argument("--settings", nargs="+", default=None, help="shaft settings of the rig")
+    parser.add_argument("--catheter", type=int, default=3,
+                        help="the steered unit, left out of the model's training data (default 3)")
+    parser.add_argument("--residual", choices=("none", "gru"), default="gru",
+                        help="the model's residual: the protocol's GRU (default) or NoResidual")
+    parser.add_argument("--schedule", choices=("quick", "full"), default="quick",
+                        help="the protocol's schedule the GRU is pretrained with (default quick)")
+    parser.add_argument("--train-runs", type=int, default=None, metavar="K",
+                        help="train on the first K repeats of each setting only (default: every run)")
+    parser.add_argument("--cache", default=None,
+                        help="folder of the trained models (default: <skcath data folder>/steering)")
+    parser.add_argument("--transit-s", type=float, default=2.0,
+                        help="seconds after each new reach target scored as the transit (default 2)")
+    parser.add_argument("--controllers", nargs="+", default=None, metavar="NAME",
+                        help="names of the controllers to run (default: all of them)")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="also the tracker-closed loop without the rate limit")
+    parser.add_argument("--rig-timing", type=int, default=0, metavar="N",
+                        help="first time the rig's reset and N steps, tracker off and on")
     parser.add_argument("--timing", type=int, default=0, metavar="N",
                         help="only time N steps of each controller and of the estimator (CPU time)")
     args = parser.parse_args()
+    if args.train_runs is not None and args.train_runs < 1:
+        parser.error(f"argument --train-runs: expected a positive number of repeats, got {args.train_runs}")
+    if args.catheter < 1:
+        parser.error(f"argument --catheter: expected a unit number of at least 1, got {args.catheter}")
+    if args.transit_s < 0:
+        parser.error(f"argument --transit-s: expected a non-negative number of seconds, got {args.transit_s}")
+    return args
+
+
+def main():
+    args = parse_args()
     if args.timing:
         times = time_steps(args.timing, args.seed)
         for name, us in times.items():
             print(f"| {name:28s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x |")
         return
-    warnings.simplefilter("ignore", UnreachableTargetWarning)
     mechanisms = args.mechanisms or (("play",) if args.quick else ("play", "bouc_wen", "dahl_creep"))
     settings = args.settings or (("S05",) if args.quick else ("S05", "S12"))
-    print("| " + " | ".join(HEADER) + " |")
-    rows = []
+    if args.rig_timing:
+        for tracker, (reset_s, step_s, cpu_s) in time_rig(args.rig_timing, args.catheter, settings[0]).items():
+            print(f"rig, tracker {'on' if tracker else 'off'}: reset {reset_s:.2f} s, "
+                  f"{step_s * 1e6:.0f} us/step wall, {cpu_s * 1e6:.0f} us/step CPU ({args.rig_timing} steps)")
+    warnings.simplefilter("ignore", UnreachableTargetWarning)
+    cache = args.cache or Path(get_data_home()) / "steering"
+    schedule = get_schedule(args.schedule)
+    rows, floors = [], {}
     for mechanism in mechanisms:
-        rows += run_mechanism(mechanism, settings, args.seed)
-    summary(rows)
+        bench = make_benchmark(mechanism=mechanism, random_state=args.seed)
+        pipe, seconds = protocol_pipeline(bench, mechanism, args.catheter, args.residual, schedule, cache,
+                                          args.train_runs, args.seed)
+        print(f"\n{mechanism}: the model trained or loaded in {seconds:.0f} s", flush=True)
+        for setting in settings:
+            floors[mechanism, setting] = estimator_floor(pipe, bench, args.catheter, setting)
+            print(f"{mechanism}, {setting}: the model's RMS on unit C{args.catheter}'s benchmark runs "
+                  f"{floors[mechanism, setting]:.2f} mm", flush=True)
+        print("| " + " | ".join(HEADER) + " |")
+        factories = registry(pipe, args.diagnose)
+        unknown = sorted(set(args.controllers or ()) - set(factories))
+        if unknown:
+            raise SystemExit(f"--controllers: unknown {unknown}; expected names among {list(factories)}")
+        wanted = set(args.controllers or factories) | ({DIAGNOSTIC} if args.diagnose else set())
+        factories = {name: f for name, f in factories.items() if name in wanted}
+        for setting in settings:
+            rows += run_setting(pipe, factories, mechanism, setting, args)
+    summary(rows, floors)
+    if args.diagnose:
+        print_terms(rows)
 
 
 if __name__ == "__main__":
