@@ -38,34 +38,43 @@ tip does not depend on the motor torques; load acts on it only through the
 transmission (the width of the loops grows with both motors' inputs) and
 the slow creep, which the rows -hys and -creep remove.
 
-Diagnosis only: the truth it reads is not available to an estimator.
+Diagnosis only: the truth it reads is not available to an estimator, nor
+to the public API (the script reads the simulator's private functions, the
+one exception to the benchmarks' use of the public API in
+``tests/test_layout.py``).
 
 Usage (from the repository root)::
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/diagnose_backbone_error.py --mechanism play --max-runs 4
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/diagnose_backbone_error.py --max-runs 17 --no-identified
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/diagnose_backbone_error.py --mechanism dahl_creep \
+        --unit rate_gain=0
+
+``--unit FIELD=VALUE ...`` changes fields of the unit C1 (its runs stay those
+of C1): which property of the simulated unit a gap comes from.
 """
 
 import argparse
+import dataclasses
 
 import numpy as np
 import pandas as pd
 
 from skcath.backbones import PCCBackbone, PDLBackbone
-from skcath.datasets import MECHANISMS, make_benchmark
-from skcath.datasets._benchmark import benchmark_catheter, benchmark_specs
+from skcath.datasets import MECHANISMS, benchmark_catheter, make_benchmark
+# the simulator's truth, which no public function returns (tests/test_layout.py names these modules)
+from skcath.datasets._benchmark import benchmark_specs
 from skcath.datasets._simulator import (
     _creep_and_lag, _draw_run, _lag, _mechanics, _mounted, _padded, _transmission, check_run_variation,
 )
 from skcath.metrics import per_run_rmse
-from skcath.sweep import _find_rays
+from skcath.sweep import find_rays
 
 BACKBONES = {"PCC": PCCBackbone, "PDL": PDLBackbone}
 
 
-def simulator_truth(mechanism, runs, random_state=0):
-    """Per run: motor angles, offsets, transmission output, lagged input, gains, wind-up, true tips."""
-    cat = benchmark_catheter(1, random_state)
+def simulator_truth(cat, mechanism, runs, random_state=0):
+    """Per run of unit ``cat``: motor angles, offsets, transmission output, section input, gains, wind-up."""
     specs = [s for s in benchmark_specs([cat], 1, random_state) if s.run in runs]
     draws = [_draw_run(s, check_run_variation(None)) for s in specs]
     v, phi, windup = _transmission(_padded([d["u"] for d in draws]), specs,
@@ -129,7 +138,7 @@ def calibrate(backbone, X, q_eff, ref):
     nominal, sweep_rmse = np.empty((len(X), 3)), []
     for run, idx in X.groupby("run", observed=True).indices.items():
         s = idx[sweep[idx]]
-        rays = _find_rays(q[s], n_rays=backbone.n_rays, run=run)
+        rays = find_rays(q[s], n_rays=backbone.n_rays, run=run)
         params, info = backbone._calibrate(q_eff[s], ref[s], rays, q[s])
         nominal[idx] = backbone._evaluate(q_eff[idx], params)
         sweep_rmse.append(info["rmse_mm"])
@@ -171,6 +180,14 @@ def split(X, q_eff, target, nominal, spacing_deg=45.0):
                    float((ok & m).sum() / ok.sum())) for name, m in cells.items()}
 
 
+def _assignment(text):
+    """``("field", value)`` from ``"field=value"`` (a float)."""
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise SystemExit(f"--unit: expected FIELD=VALUE; got {text!r}.")
+    return name, float(value)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mechanism", choices=MECHANISMS, default="play")
@@ -179,13 +196,22 @@ def main(argv=None):
     parser.add_argument("--random-state", type=int, default=0)
     parser.add_argument("--no-identified", dest="identified", action="store_false",
                         help='skip the rows of hysteresis="play" and "pi" (the slow ones)')
+    parser.add_argument("--unit", nargs="+", metavar="FIELD=VALUE", default=[],
+                        help="change fields of the unit C1 (e.g. rate_gain=0 creep_gain=0)")
     args = parser.parse_args(argv)
-    data = make_benchmark(mechanism=args.mechanism, n_catheters=1, n_runs=1,
-                          random_state=args.random_state)
+    cat = benchmark_catheter(1, args.random_state)
+    if args.unit:
+        # a changed unit runs the runs of C1 (not cached: a diagnosis only)
+        cat = dataclasses.replace(cat, **dict(_assignment(a) for a in args.unit))
+        data = make_benchmark(mechanism=args.mechanism, catheters=[cat], n_runs=1,
+                              random_state=args.random_state, cache=False)
+    else:
+        data = make_benchmark(mechanism=args.mechanism, n_catheters=1, n_runs=1,
+                              random_state=args.random_state)
     runs = list(data.X["run"].unique()[: args.max_runs])
     keep = data.X["run"].isin(runs).to_numpy()
     data.X, data.y, data.y_true = data.X[keep], data.y[keep], data.y_true[keep]
-    truth = simulator_truth(args.mechanism, set(runs), args.random_state)
+    truth = simulator_truth(cat, args.mechanism, set(runs), args.random_state)
     truth = {r: truth[r] for r in runs}
     rows = []
     ladder = variants(data, truth)
@@ -211,7 +237,8 @@ def main(argv=None):
             print(row, flush=True)
     table = pd.DataFrame(rows).set_index("row")
     table.insert(1, "ratio", table["motion RMSE (mm)"] / table["motion RMSE (mm)"].iloc[0])
-    print(f"{args.backbone}, catheter C1, mechanism {args.mechanism}, runs {len(runs)}")
+    changed = f", changed: {' '.join(args.unit)}" if args.unit else ""
+    print(f"{args.backbone}, catheter C1{changed}, mechanism {args.mechanism}, runs {len(runs)}")
     print(table.to_string(na_rep="", float_format="{:.3f}".format))
 
 if __name__ == "__main__":
