@@ -6,7 +6,8 @@ Imported only for an estimator on the numba engine (it imports numba).
 and limits: it advances the model by the commands not observed yet, updates
 the feedback's correction, solves the model for the target (from the
 previous solution, then from the nearest seed of the grid), inverts the
-hysteresis (the play, or the Prandtl-Ishlinskii model), keeps the command within the motor and rate limits and queues it. The
+hysteresis (the play, or the Prandtl-Ishlinskii model), keeps the command
+within the motor and rate limits and queues it. The
 model is evaluated through the compiled look-ahead kernels of the estimator
 (:meth:`ModelView.compiled <skcath.online._model_view.ModelView.compiled>`).
 The controller's parameters and state live in one float array, laid out as
