@@ -502,3 +502,155 @@ def test_one_term_pi_inverse_is_the_play_inverse_without_its_dead_band():
             z_state = play_kernel(z_state, q, width)
     assert differ[0.0] == 0
     assert differ[1.0] > 100  # the dead band holds small reversals that the PI inverse makes
+
+
+def _random_pi(rng, n_motors=2):
+    """A Prandtl-Ishlinskii model with dead band, asymmetry, creep and some plays without weight."""
+    from skcath.backbones import PrandtlIshlinskii
+
+    weights = rng.uniform(0.1, 1.0, 4) * (rng.random(4) > 0.3)
+    weights = weights / weights.sum() if weights.sum() > 0 else np.eye(1, 4).ravel()
+    return PrandtlIshlinskii([0.0, 0.5, 1.4, 4.0], weights, dead_band=rng.uniform(0.0, 2.0),
+                             asymmetry=rng.uniform(-0.5, 0.5, n_motors), creep_gain=rng.uniform(0.0, 0.4),
+                             creep_tau_s=rng.uniform(0.5, 5.0))
+
+
+def _pi_after_motion(model, rng, n=40, dt=0.1):
+    """The forward state and effective angles of ``model`` after a random walk of the motors, and the last angles."""
+    q = np.cumsum(rng.normal(0.0, 3.0, (n, model.n_motors)), axis=0)
+    state = model.initial_state(q[0])
+    for row in q[1:]:
+        state, v = model.step(state, row, dt)
+    return state, v, q[-1]
+
+
+def test_pi_inverse_commands_the_wanted_effective_angle_from_the_streams_state():
+    """From any state the forward PI reached, the forward step of the inverse's command is the wanted angle."""
+    from skcath.control._hysteresis import PIInverse
+
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(40):
+        model = _random_pi(rng)
+        state, v, q = _pi_after_motion(model, rng)
+        inverse = PIInverse(model, state, np.array([0.1]))
+        for _ in range(30):  # small and large moves, reversals included
+            wanted = v + rng.normal(0.0, rng.choice([0.05, 1.0, 5.0]), 2)
+            q = inverse.command(wanted, v, q)
+            new_state, v = model.step(state, q, 0.1)
+            state[:] = new_state  # the inverse reads the stream's state in place
+            worst = max(worst, float(np.abs(v - wanted).max()))
+    assert worst < 1e-9
+
+
+def test_pi_inverse_dead_band_holds_small_reversals_only():
+    """A reversal of the wanted angle smaller than the dead band keeps the command; a larger one is made."""
+    from skcath.control._hysteresis import PIInverse
+
+    rng = np.random.default_rng(6)
+    model = _random_pi(rng, n_motors=1)
+    state, v, q = _pi_after_motion(model, rng)
+    inverse = PIInverse(model, state, np.array([0.1]), dead_band=1.0)
+    q = inverse.command(v + 5.0, v, q)  # a move up: the motor pushes from above the effective angle
+    state[:], v = model.step(state, q, 0.1)
+    assert q[0] > v[0]
+    np.testing.assert_array_equal(inverse.command(v - 0.5, v, q), q)  # held
+    up = inverse.command(v + 0.5, v, q)  # the side the motor pushes: followed
+    np.testing.assert_allclose(model.step(state, up, 0.1)[1], v + 0.5, atol=1e-9)
+    down = inverse.command(v - 3.0, v, q)  # a reversal larger than the band: made
+    np.testing.assert_allclose(model.step(state, down, 0.1)[1], v - 3.0, atol=1e-9)
+
+
+@needs_numba
+def test_compiled_pi_inverse_is_the_python_one():
+    """The compiled PI inverse makes :class:`PIInverse`'s command to the last bit, dead band included."""
+    from skcath.control import _jit
+    from skcath.control._compiled import _pi_arrays
+    from skcath.control._hysteresis import PIInverse
+
+    _jit.control_kernel()
+    rng = np.random.default_rng(7)
+    for band in (0.0, 1.0):
+        for _ in range(20):
+            model = _random_pi(rng, n_motors=3)
+            state, v, q = _pi_after_motion(model, rng)
+            inverse = PIInverse(model, state, np.array([0.1]), dead_band=band)
+            wanted = v + rng.choice([0.0, 0.3, -0.3, 1.5, -1.5, 8.0], size=3)
+            got = np.empty(3)
+            _jit._pi_commands(_pi_arrays(inverse), wanted, v, q, band, got)
+            assert np.array_equal(got, inverse.command(wanted, v, q))
+
+
+@pytest.fixture(scope="module")
+def pi_pipe(runs):
+    """A PCC backbone with hysteresis="pi" and no residual, fitted on the training run."""
+    X, y, _, _ = runs
+    backbone = PCCBackbone(hysteresis="pi").fit(X)
+    return Pipeline([("backbone", backbone), ("residual", NoResidual().fit(backbone.transform(X), y))])
+
+
+def _rig_circle(pi_pipe, inverse_on, rate_limit=None, check=None):
+    """A feedforward controller of the PI model on the simulated rig, along a slow circle of model tips.
+
+    Returns the RMS distance (mm) of the rig's noise-free tip from the target
+    the controller was given for it, after the first turn, and the commands.
+    """
+    from skcath.datasets import SimulatedCatheter
+
+    rig = SimulatedCatheter(catheter=1, setting="S02", random_state=0)
+    controller = FeedforwardController(pi_pipe, engine="numpy", rate_limit=rate_limit).start(rig.reset())
+    assert controller.inverse_.kind == "pi"
+    if not inverse_on:
+        controller.inverse_ = IdentityInverse()
+    elif check is not None:
+        command = controller.inverse_.command
+        controller.inverse_.command = lambda *args: check(controller, args, command(*args))
+    k = np.arange(120)
+    z = controller.limits_.neutral + 15.0 * np.c_[np.cos(2 * np.pi * k / 60) - 1.0, np.sin(2 * np.pi * k / 60)]
+    targets = np.array([controller._view.backbone(*row) for row in z])
+    obs, tips, commands = rig.step(controller.command_), [], []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnreachableTargetWarning)
+        for target in targets:
+            commands.append(controller.step(target, obs))
+            obs = rig.step(commands[-1])
+            tips.append(rig.tip_.copy())
+    error = np.linalg.norm(np.array(tips)[2:] - targets[:-2], axis=1)[60:]
+    return float(np.sqrt(np.mean(error ** 2))), np.array(commands), controller
+
+
+def test_pi_feedforward_solves_through_the_hysteresis_and_tracks_better(pi_pipe):
+    """On the rig: every command's forward PI step gives the solved effective angles; the circle is tracked better."""
+    worst, n_checked = [0.0], [0]
+
+    def check(controller, args, q):
+        z_wanted, _, _ = args
+        est = controller.estimator_
+        effective = est.hysteresis_.step(est.hysteresis_state_, q, float(est._dt[0]))[1]
+        worst[0] = max(worst[0], float(np.abs(effective - z_wanted).max()))
+        n_checked[0] += 1
+        return q
+
+    with_inverse, _, controller = _rig_circle(pi_pipe, True, check=check)
+    assert controller.estimator_.hysteresis_.dead_band > 0.0  # a hysteresis worth inverting
+    assert n_checked[0] == 120 and worst[0] < 1e-6
+    without, _, _ = _rig_circle(pi_pipe, False)
+    assert with_inverse < 0.95 * without
+    _, commands, controller = _rig_circle(pi_pipe, True, rate_limit=20.0)
+    steps = np.abs(np.diff(commands, axis=0)).max(axis=1)
+    assert steps.max() <= 20.0 * controller.dt_ + 1e-9
+    assert np.all([controller.limits_.contains(c) for c in commands])
+
+
+@needs_numba
+def test_compiled_step_gives_the_numpy_steps_commands_with_the_pi(runs, pi_pipe):
+    """With the PI's inverse in the compiled step, both engines command the same over a task with limits."""
+    _, _, sweep, motion = runs
+    tips = _model_tips(pi_pipe, sweep, motion)
+    targets = np.vstack([tips[:40], np.repeat(tips[[20, 140, 60]], 8, axis=0), tips[100:110]])
+    for Controller, kwargs in ((FeedforwardController, {"rate_limit": 60.0}),
+                               (FeedbackController, {"rate_limit": 60.0, "dead_band": 0.5})):
+        got = _compare_engines(lambda engine: Controller(pi_pipe, engine=engine, **kwargs), pi_pipe, sweep,
+                               targets, offset=(1.0, -0.5, 0.0))
+        np.testing.assert_allclose(got["numba"][0], got["numpy"][0], atol=1e-6)
+        assert got["numba"][1:] == got["numpy"][1:]

@@ -1,8 +1,9 @@
 """Steering the tip: motor commands from a fitted tip model, compensating its hysteresis.
 
 :class:`FeedforwardController` inverts the model's own streaming step (the
-backbone, the residual and the play in front of the backbone) for the
-command whose predicted tip is the target; :class:`FeedbackController`
+backbone, the residual and the hysteresis in front of the backbone: the
+play or the Prandtl-Ishlinskii model) for the command whose predicted tip
+is the target; :class:`FeedbackController`
 closes the loop on the streamed estimate (or on the tracker) by resolved
 rate on the model's Jacobian. Both start on the run's sweep and return one
 motor command per sample, within the motor and rate limits given; a target

@@ -22,6 +22,19 @@ MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE = 0, 1, 2
 EPS_DEG = SOLVE_TOL_DEG = 1e-3
 
 
+def _pi_arrays(inverse):
+    """What the compiled step reads of a :class:`~skcath.control._hysteresis.PIInverse` (placeholders for another).
+
+    ``(link, theta, forward, dt, up, down)``; ``forward`` and ``dt`` are the
+    stream's own arrays (views of its state), read at every step.
+    """
+    if inverse.kind != "pi":
+        return tuple(np.zeros(1) for _ in range(6))
+    link, theta, up, down = (np.ascontiguousarray(a, dtype=np.float64)
+                             for a in (inverse.link, inverse.theta, inverse.up, inverse.down))
+    return link, theta, inverse.state, inverse.dt, up, down
+
+
 class CompiledStep:
     """The compiled step of one started controller.
 
@@ -45,11 +58,13 @@ class CompiledStep:
         s = np.zeros(size)
         limits = controller.limits_
         rate = controller.rate_limit
+        inverse = controller.inverse_
+        kind = {"none": j.KIND_NONE, "play": j.KIND_PLAY, "pi": j.KIND_PI}[inverse.kind]
         s[[j.S_GAIN, j.S_DAMPING, j.S_EPS, j.S_TOL, j.S_MAX_ITER, j.S_MAX_STEP, j.S_WIDTH, j.S_BAND,
-           j.S_RADIUS, j.S_MARGIN, j.S_MODE, j.S_LATENCY]] = (
+           j.S_RADIUS, j.S_MARGIN, j.S_MODE, j.S_LATENCY, j.S_KIND]] = (
             getattr(controller, "gain", 0.0), controller.damping, EPS_DEG, SOLVE_TOL_DEG, controller.max_iter,
-            math.inf if rate is None else rate * controller.dt_, view.play_width,
-            controller._dead_band(), limits.radius, margin, mode, controller.latency)
+            math.inf if rate is None else rate * controller.dt_, getattr(inverse, "width", 0.0),
+            controller._dead_band(), limits.radius, margin, mode, controller.latency, kind)
         for b, values in ((j.B_LOW, limits.low), (j.B_HIGH, limits.high), (j.B_NEUTRAL, limits.neutral),
                           (j.B_COMMAND, controller.command_), (j.B_SOLUTION, controller.command_),
                           (j.B_WANTED, controller.command_)):
@@ -61,7 +76,7 @@ class CompiledStep:
         self.command = s[at[j.B_COMMAND] : at[j.B_COMMAND] + n]
         self.aimed = s[j.S_AIMED : j.S_AIMED + 3]
         self.correction = s[j.S_CORRECTION : j.S_CORRECTION + 3]
-        self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips)
+        self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips, _pi_arrays(inverse))
         self._kernel = j.control_kernel()
 
     @property

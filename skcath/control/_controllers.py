@@ -148,7 +148,7 @@ class _Controller(BaseEstimator):
         """Feedback state set by :meth:`start`; none for the feedforward."""
 
     def _dead_band(self):
-        """Smallest reversal of a played angle the hysteresis inverse makes (deg); none for the feedforward."""
+        """Smallest reversal of an effective angle the hysteresis inverse makes (deg); none for the feedforward."""
         return 0.0
 
     def _check_started(self):
@@ -172,12 +172,12 @@ class _Controller(BaseEstimator):
         pending = list(self._issued)[-self.latency:] if self.latency else []
         self._effective = np.array(pending[-1] if pending else sample[:n], dtype=float)
         self.model_.begin([(*q.tolist(), *self._torques) for q in pending])
-        if self._view.play_width > 0.0:  # the played angles after the pending commands
+        if self.inverse_.kind != "none":  # the effective angles after the pending commands
             self._effective = self._view.effective.copy()
         return self.estimate_, tip
 
     def _effective_state(self):
-        """Effective angles (deg) the next command moves from: played, or commanded without a play."""
+        """Effective angles (deg) the next command moves from: through the hysteresis, or commanded without."""
         return self._effective
 
     def _solve(self, target, z0):
@@ -303,7 +303,9 @@ class FeedforwardController(_Controller):
     warm-started from the previous solution) for the effective motor angles
     whose predicted tip is the target; the inverse of the hysteresis in
     front of the backbone (for ``hysteresis="play"``: the wanted angle plus or
-    minus the play's half-width in the direction of motion) turns those into
+    minus the play's half-width in the direction of motion; for
+    ``hysteresis="pi"``: one step of the Prandtl-Ishlinskii model's inverse
+    from the stream's state) turns those into
     the motor command, which is then kept within the motor and rate limits.
     The measured sample only advances the model's state: the loop is open.
 
@@ -355,7 +357,7 @@ class FeedbackController(_Controller):
     ``target - correction_``. As the prediction compared with the
     measurement is that of the command it measures, the loop's delay does
     not enter the loop; a wanted tip that moves smoothly goes through the
-    hysteresis inverse, and a reversal of a played angle smaller than
+    hysteresis inverse, and a reversal of an effective angle smaller than
     ``dead_band`` is not made. The correction is not updated from a sample
     whose command was held at a motor or rate limit.
 
@@ -382,8 +384,9 @@ class FeedbackController(_Controller):
         of the model's error more slowly (a time constant of about
         ``1 / gain`` samples).
     dead_band : float, default=1.0
-        Smallest reversal of a played angle (deg) the play's inverse makes;
-        for a pipeline without the play it has no effect. 0: every reversal.{_COMMON_PARAMETERS}
+        Smallest reversal of an effective angle (deg) the inverse of the
+        play or of the Prandtl-Ishlinskii hysteresis makes; for a pipeline
+        without either it has no effect. 0: every reversal.{_COMMON_PARAMETERS}
     Attributes
     ----------{_COMMON_ATTRIBUTES}    correction_ : ndarray of shape (3,)
         The filtered model error (mm) subtracted from the target, with

@@ -1,8 +1,9 @@
 """Inverses of the transmission's hysteresis: the motor command that gives a wanted effective angle.
 
-A backbone with ``hysteresis="play"`` reads the played motor angles (the
-effective angles ``z``) rather than the motor angles ``q``
-(:func:`~skcath.backbones.play_operator`). The controllers solve for the
+A backbone with ``hysteresis="play"`` or ``"pi"`` reads the effective angles
+``z`` (the motor angles ``q`` played, :func:`~skcath.backbones.play_operator`,
+or through the Prandtl-Ishlinskii model, :class:`~skcath.backbones.PrandtlIshlinskii`)
+rather than the motor angles. The controllers solve for the
 effective angles that put the model's tip on the target, then ask the
 inverse of the hysteresis for the command that moves the transmission
 there from its present state. Each inverse is a small object with one
@@ -15,7 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["INVERSES", "IdentityInverse", "PlayInverse", "hysteresis_inverse"]
+from .._kernel import kernel
+from ..backbones._pi import pi_inverse_step
+
+__all__ = ["INVERSES", "IdentityInverse", "PIInverse", "PlayInverse", "hysteresis_inverse", "pi_command",
+           "pi_link"]
 
 #: A wanted effective angle this close to the present one (deg) needs no motion.
 TOL_DEG = 1e-6
@@ -97,11 +102,111 @@ class PlayInverse:
         return np.array(q)
 
 
+def pi_link(model):
+    """What :func:`pi_command` reads of the forward PI ``model`` to set its inverse's state (flat array).
+
+    ``[K, M, a_0..a_{M-1}, w_0..w_{M-1}]``: the number of plays, and the
+    ``M`` plays of positive weight (their indices and weights), as
+    :meth:`~skcath.backbones.PrandtlIshlinskii.inverse_terms` reads them.
+    """
+    active = np.flatnonzero(model.weights > 0)
+    return np.concatenate([[model.thresholds.size, active.size], active, model.weights[active]])
+
+
+@kernel
+def pi_command(link, theta, forward, at, scratch, v, q_previous, v_state, dt, up, down, dead_band):
+    """The motor command (deg) of one motor that brings its PI's effective angle to ``v`` (deg).
+
+    The inverse's state is set from the forward state ``forward[at:at + K + 2]``
+    (dead band ``b``, plays ``z_k``, creep ``c``; deg) and the previous
+    command ``q_previous``: the same creep; the dead band's output at the
+    first play of positive weight, ``b' = z_f``; inverse play ``j`` at
+    ``W_j z_j + sum_{i > j} w_i z_i`` (over the plays of positive weight,
+    ``W_j = sum_{i <= j} w_i``), where the inverse plays stand after the
+    forward ones' history. One :func:`~skcath.backbones.pi_inverse_step` from there by
+    ``dt`` (s) gives the command, whose forward step from the same state is ``v``.
+
+    A reversal (``v`` on the other side of the present effective angle
+    ``v_state`` than the command, which last pushed it) smaller than
+    ``dead_band`` (deg) is not made: the previous command is kept.
+    ``theta``, ``up``, ``down``: :meth:`~skcath.backbones.PrandtlIshlinskii.pack_inverse`;
+    ``link``: :func:`pi_link`; ``scratch`` holds ``K' + 3`` floats.
+    """
+    if dead_band > 0.0:
+        if q_previous >= v_state:
+            if v_state - dead_band < v < v_state:
+                return q_previous
+        elif v_state < v < v_state + dead_band:
+            return q_previous
+    k, m = int(link[0]), int(link[1])
+    weights = 2 + m
+    scratch[0] = forward[at + 1 + k]
+    for j in range(m):  # z'_j = W_j z_j + sum_{i > j} w_i z_i
+        total = 0.0
+        for i in range(m):
+            zi = forward[at + 1 + int(link[2 + max(i, j)])]
+            total += link[weights + i] * zi
+        scratch[1 + j] = total
+    z_first = forward[at + 1 + int(link[2])]
+    scratch[1 + m] = z_first
+    scratch[2 + m] = q_previous
+    return pi_inverse_step(theta, scratch, 0, v, dt, up, down)
+
+
+class PIInverse:
+    """Inverse of a backbone's Prandtl-Ishlinskii hysteresis (:class:`~skcath.backbones.PrandtlIshlinskii`).
+
+    Every command steps the PI's inverse once from the state the stream's
+    forward PI is in (:func:`pi_command`): the forward step of the command
+    from that state gives the wanted effective angle (up to rounding), its
+    dead band, plays and creep included. The creep is stepped by the
+    stream's time step of the next sample.
+
+    With ``dead_band > 0`` a reversal of the wanted effective angle smaller
+    than ``dead_band`` keeps the previous command, as the play's inverse
+    (:class:`PlayInverse`) keeps it within the play.
+
+    Parameters
+    ----------
+    model : PrandtlIshlinskii
+        The run's hysteresis (``OnlineEstimator.hysteresis_``).
+    state : ndarray of shape (n_motors * (K + 2),)
+        The forward state, read at every command (``hysteresis_state_``, a
+        view of the stream's state; deg).
+    dt : ndarray of shape (1,)
+        The time step (s) the stream's creep reads at the next sample, read at every command.
+    dead_band : float, default=0.0
+        Smallest reversal of an effective angle that is made (deg), ``>= 0``.
+    """
+
+    kind = "pi"
+
+    def __init__(self, model, state, dt, dead_band=0.0):
+        self.model = model
+        self.state = state
+        self.dt = dt
+        self.dead_band = float(dead_band)
+        self.theta, self.up, self.down = model.pack_inverse()
+        self.link = pi_link(model)
+
+    def command(self, z_wanted, z_state, q_previous):
+        """Motor command (deg) that brings the effective angles to ``z_wanted``; as :meth:`IdentityInverse.command`."""
+        size, dt = self.model.thresholds.size + 2, float(self.dt[0])
+        scratch = np.empty(int(self.theta[0]) + 3)
+        return np.array([
+            pi_command(self.link, self.theta, self.state, j * size, scratch, float(v), float(q), float(s), dt,
+                       self.up[j], self.down[j], self.dead_band)
+            for j, (v, q, s) in enumerate(zip(np.asarray(z_wanted, dtype=float).tolist(),
+                                              np.asarray(q_previous).tolist(), np.asarray(z_state).tolist()))
+        ])
+
+
 #: The inverse of each kind of hysteresis: ``kind -> factory(estimator)``, for a started
 #: :class:`~skcath.online.OnlineEstimator`.
 INVERSES = {
     "none": lambda est: IdentityInverse(),
     "play": lambda est: PlayInverse(est.play_width_),
+    "pi": lambda est: PIInverse(est.hysteresis_, est.hysteresis_state_, est._dt),
 }
 
 
@@ -113,15 +218,19 @@ def hysteresis_inverse(estimator, dead_band=0.0):
     estimator : OnlineEstimator
         Started.
     dead_band : float, default=0.0
-        Smallest reversal of a played angle that is made (deg); for the play only.
+        Smallest reversal of an effective angle that is made (deg); for the play and the PI.
 
     Returns
     -------
-    inverse : IdentityInverse or PlayInverse
-        ``PlayInverse`` for a play of positive half-width, else ``IdentityInverse``.
+    inverse : IdentityInverse, PlayInverse or PIInverse
+        ``PIInverse`` for a backbone with ``hysteresis="pi"`` (``hysteresis_``
+        set), ``PlayInverse`` for a play of positive half-width, else ``IdentityInverse``.
     """
-    kind = "play" if getattr(estimator, "play_width_", 0.0) > 0.0 else "none"
+    if getattr(estimator, "hysteresis_", None) is not None:
+        kind = "pi"
+    else:
+        kind = "play" if getattr(estimator, "play_width_", 0.0) > 0.0 else "none"
     inverse = INVERSES[kind](estimator)
-    if kind == "play":
+    if kind != "none":
         inverse.dead_band = float(dead_band)
     return inverse

@@ -6,7 +6,8 @@ Imported only for an estimator on the numba engine (it imports numba).
 and limits: it advances the model by the commands not observed yet, updates
 the feedback's correction, solves the model for the target (from the
 previous solution, then from the nearest seed of the grid), inverts the
-play, keeps the command within the motor and rate limits and queues it. The
+hysteresis (the play, or the Prandtl-Ishlinskii model), keeps the command
+within the motor and rate limits and queues it. The
 model is evaluated through the compiled look-ahead kernels of the estimator
 (:meth:`ModelView.compiled <skcath.online._model_view.ModelView.compiled>`).
 The controller's parameters and state live in one float array, laid out as
@@ -24,14 +25,16 @@ from ..online._model_view_jit import advance as _advance
 from ..online._model_view_jit import restore as _restore
 from ..online._model_view_jit import tip as _tip
 from ._compiled import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
-from ._hysteresis import TOL_DEG
+from ._hysteresis import TOL_DEG, pi_command
 
-__all__ = ["control_kernel", "control_step", "layout"]
+__all__ = ["KIND_NONE", "KIND_PI", "KIND_PLAY", "control_kernel", "control_step", "layout"]
 
 #: Scalars of the state array: parameters, then state; blocks of ``n_motors`` follow from ``S_BLOCKS``.
 (S_GAIN, S_DAMPING, S_EPS, S_TOL, S_MAX_ITER, S_MAX_STEP, S_WIDTH, S_BAND, S_RADIUS, S_MARGIN,
- S_MODE, S_LATENCY, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_CORRECTION, S_AIMED,
- S_BLOCKS) = offsets(*([1] * 15), 3, 3)
+ S_MODE, S_LATENCY, S_KIND, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_CORRECTION, S_AIMED,
+ S_BLOCKS) = offsets(*([1] * 16), 3, 3)
+#: The hysteresis inverted (``S_KIND``): none, the play (half-width ``S_WIDTH``), the Prandtl-Ishlinskii model.
+KIND_NONE, KIND_PLAY, KIND_PI = 0, 1, 2
 #: Blocks of ``n_motors`` (deg): limits, last command, last solution, wanted angles, effective angles.
 B_LOW, B_HIGH, B_NEUTRAL, B_COMMAND, B_SOLUTION, B_WANTED, B_EFFECTIVE, N_BLOCKS = range(8)
 
@@ -205,8 +208,22 @@ def _play_command(z_wanted, z_state, q_previous, width, dead_band, q):
             q[j] = min(max(qj, zj - width), zj + width)
 
 
-def _issue(s, z_wanted, issued):
-    """The command for the wanted effective angles: the play's inverse, the motor and rate limits.
+def _pi_commands(pi, z_wanted, z_state, q_previous, dead_band, q):
+    """The PI's inverse into ``q``: as :meth:`PIInverse.command <skcath.control._hysteresis.PIInverse.command>`.
+
+    ``pi`` is ``(link, theta, forward, dt, up, down)``: :func:`~skcath.control._hysteresis.pi_link`,
+    the packed inverse, the stream's forward state, its next time step (s) and the dead band up and down.
+    """
+    link, theta, forward, dt, up, down = pi
+    size = int(link[0]) + 2
+    scratch = np.empty(int(theta[0]) + 3)
+    for j in range(q.shape[0]):
+        q[j] = pi_command(link, theta, forward, j * size, scratch, z_wanted[j], q_previous[j], z_state[j],
+                          dt[0], up[j], down[j], dead_band)
+
+
+def _issue(s, z_wanted, issued, pi):
+    """The command for the wanted effective angles: the hysteresis' inverse, the motor and rate limits.
 
     As :meth:`_Controller._issue <skcath.control._controllers._Controller._issue>`:
     the command goes to the block ``B_COMMAND`` and the queue ``issued``
@@ -219,7 +236,10 @@ def _issue(s, z_wanted, issued):
     z = z_wanted.copy()
     _project(z, low, high, neutral, s[S_RADIUS])
     q = np.empty(n)
-    _play_command(z, _block(s, B_EFFECTIVE, n), command, s[S_WIDTH], s[S_BAND], q)
+    if s[S_KIND] == KIND_PI:
+        _pi_commands(pi, z, _block(s, B_EFFECTIVE, n), command, s[S_BAND], q)
+    else:
+        _play_command(z, _block(s, B_EFFECTIVE, n), command, s[S_WIDTH], s[S_BAND], q)
     limited_q = q.copy()
     _project(limited_q, low, high, neutral, s[S_RADIUS])
     limited = False
@@ -254,7 +274,7 @@ def _observe(view, s, issued, sample, torques):
     effective = _block(s, B_EFFECTIVE, n)
     _advance(meta, a64, anet, w32, saved_f, saved_buf, f0, buf0, pending, latency, torques, scratch,
              np.empty(3), effective)
-    if s[S_WIDTH] > 0.0:  # the played angles after the pending commands, as the view gave them
+    if s[S_KIND] != KIND_NONE:  # the effective angles after the pending commands, as the view gave them
         return
     if latency > 0:
         effective[:] = pending[latency - 1]
@@ -263,7 +283,7 @@ def _observe(view, s, issued, sample, torques):
             effective[j] = sample[j]
 
 
-def control_step(view, s, issued, aims, grid_z, grid_tips, target, measured, sample):
+def control_step(view, s, issued, aims, grid_z, grid_tips, pi, target, measured, sample):
     """One step of a controller, from the observed sample to the command (block ``B_COMMAND``).
 
     Parameters
@@ -281,6 +301,8 @@ def control_step(view, s, issued, aims, grid_z, grid_tips, target, measured, sam
         and whether its command went out unlimited (1.0) or not (0.0); updated.
     grid_z, grid_tips : ndarray of shape (n_seeds, n_motors), (n_seeds, 3)
         The seeds of the solve: effective angles (deg) and the backbone's tips there (mm).
+    pi : tuple of ndarray
+        The PI's inverse (see :func:`_pi_commands`); read with ``S_KIND == KIND_PI`` only.
     target : ndarray of shape (3,)
         Wanted tip (mm).
     measured : ndarray of shape (3,)
@@ -319,7 +341,7 @@ def control_step(view, s, issued, aims, grid_z, grid_tips, target, measured, sam
         _project(wanted, _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n), s[S_RADIUS])
     else:
         wanted[:] = z
-    _issue(s, wanted, issued)
+    _issue(s, wanted, issued, pi)
     s[S_AIMED : S_AIMED + 3] = tip
     if mode != MODE_FEEDFORWARD:
         at = int(s[S_AIMS_AT])
@@ -339,7 +361,7 @@ def control_kernel():
     if not _compiled_step:
         g = globals()
         for name in ("_project", "_damped_step", "_look", "_jacobian", "_solve", "_distance2", "_aim",
-                     "_play_command", "_issue", "_observe", "_block"):
+                     "_play_command", "_pi_commands", "_issue", "_observe", "_block"):
             g[name] = compiled(g[name])  # the step calls them compiled
         _compiled_step["step"] = compiled(control_step)
     return _compiled_step["step"]
