@@ -38,6 +38,7 @@ not go out and straight back to rest at neutral.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 from numbers import Integral, Real
 
@@ -48,7 +49,7 @@ from sklearn.utils._param_validation import Interval, validate_params
 from ._format import RUN, TIME
 from ._validation import CUT_RUN_HINT, motor_columns, to_array
 
-__all__ = ["N_SWEEP_ATTR", "SweepEnd", "find_sweep_end", "n_sweep_hint"]
+__all__ = ["N_SWEEP_ATTR", "SweepEnd", "find_sweep_end", "n_sweep_hint", "naming_n_sweep"]
 
 #: Key of ``X.attrs`` under which the readers of :mod:`skcath.io` record the
 #: ``n_sweep`` a user gave, as a dict run id -> n_sweep, so that a sweep
@@ -546,3 +547,36 @@ def n_sweep_hint(message, n_sweep, q, t, run) -> str:
         f"skcath.sweep.find_sweep_end): read it with n_sweep={found.n_sweep}, or with "
         "n_sweep='auto' to find the sweep of every run."
     )
+
+
+@contextmanager
+def naming_n_sweep(given, q, run):
+    """Complete a sweep error raised in the ``with`` block by :func:`n_sweep_hint`.
+
+    Parameters
+    ----------
+    given : tuple of (int, ndarray of shape (n,)) or None
+        The ``n_sweep`` the run was read with and the times of the rows of
+        ``q`` (s); None when no ``n_sweep`` was given, and errors pass
+        unchanged.
+    q : ndarray of shape (n, n_motors)
+        Motor angles of the run's rows the block reads, in time order
+        (degrees).
+    run : str or int
+        Run id.
+
+    Raises
+    ------
+    ValueError
+        The block's ValueError, its message completed when ``n_sweep`` may
+        be its cause.
+    """
+    try:
+        yield
+    except ValueError as exc:
+        if given is None:
+            raise
+        message = n_sweep_hint(str(exc), given[0], q, given[1], run)
+        if message == str(exc):
+            raise
+        raise ValueError(message) from None

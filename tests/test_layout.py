@@ -160,3 +160,24 @@ def test_the_benchmark_loader_check_sees_a_loader(tmp_path):
     path.write_text('import importlib.util\n'
                     'spec = importlib.util.spec_from_file_location("b", "benchmarks/bench_x.py")\n')
     assert _loads_a_benchmark_script(path)
+
+
+def test_slow_marks_name_existing_tests():
+    """Every test marked slow by id in conftest.py exists: its file, function and example."""
+    from conftest import SLOW
+
+    missing = []
+    for test_id, covered_by in SLOW.items():
+        assert covered_by, f"{test_id}: no default test named for its behaviour"
+        file_name, name = test_id.split("::")
+        function, _, params = name.partition("[")
+        path = ROOT / "tests" / file_name
+        defined = path.is_file() and any(
+            isinstance(node, ast.FunctionDef) and node.name == function
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+        )
+        if not defined:
+            missing.append(test_id)
+        elif function == "test_example_runs" and not list((ROOT / "examples").rglob(params[:-1])):
+            missing.append(test_id)
+    assert missing == []

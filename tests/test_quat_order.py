@@ -192,3 +192,29 @@ def test_files_are_checked_by_the_order_declared_for_them(tmp_path):
     manifest.to_csv(folder / "manifest.txt", index=False)
     X, _ = read_recordings(manifest=folder / "manifest.txt", columns=columns, progress=False)
     assert X["run"].nunique() == 8
+
+
+def test_streams_of_several_runs_are_checked_as_a_file(tmp_path):
+    """read_streams checks the order as read_recording does, with the same message."""
+    from skcath.io import read_recording, read_streams
+
+    folder = _write_runs(tmp_path, "xyzw", n_catheters=1, n_runs=4)
+    one = pd.concat([pd.read_csv(p) for p in sorted(folder.glob("C0-*.csv"))], ignore_index=True)
+    one["t"] = np.arange(len(one)) * 0.1  # one clock for the two logs
+    pose = [c for c in one.columns if c.startswith(("tip_p", "base_p")) or c in BASE_COLUMNS]
+    motors, tracker = one.drop(columns=pose), one[["t", *pose]]
+    path = tmp_path / "all" / "runs.csv"
+    path.parent.mkdir()
+    one.to_csv(path, index=False)
+    kwargs = {"columns": {"base_orientation": BASE_COLUMNS}, "quat_order": "wxyz"}
+    with pytest.raises(ValueError) as from_file:
+        read_recording(path, **kwargs)
+    with pytest.raises(ValueError, match=r"quat_order='wxyz'.*pass quat_order='xyzw'") as info:
+        read_streams(motors, tracker, tolerance=0.01, **kwargs)
+    assert str(info.value) == str(from_file.value)
+    X, y, _ = read_streams(motors, tracker, tolerance=0.01, **{**kwargs, "quat_order": "xyzw"})
+    assert X["run"].nunique() == 4
+    X_file, y_file = read_recording(path, **{**kwargs, "quat_order": "xyzw"})
+    pd.testing.assert_frame_equal(X, X_file)
+    np.testing.assert_allclose(y, y_file)
+    read_streams(motors, tracker, tolerance=0.01, quat_check=False, **kwargs)

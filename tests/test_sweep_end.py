@@ -200,6 +200,28 @@ def test_wrong_n_sweep_of_a_sweep_alone_says_where_to_find_the_end(bench, tmp_pa
     assert "KFold" not in message
 
 
+def test_wrong_n_sweep_of_a_resweep_names_it(bench, tmp_path):
+    # A motor-only re-sweep read with a wrong n_sweep: the error of its rays names
+    # n_sweep as start's does, not a cut run, and the estimator stays as it was.
+    from sklearn.pipeline import Pipeline
+
+    from skcath.online import OnlineEstimator
+
+    run, rows, true = _runs(bench.X, 1)[0]
+    path = _export(rows, bench.y[(bench.X["run"] == run).to_numpy()], tmp_path / "rig.csv")
+    X, y = read_recording(path, n_sweep=true, catheter="A", setting="s")
+    est = OnlineEstimator(Pipeline([("backbone", PDLBackbone())]).fit(X, y))
+    est.start(X[X["phase"] == "sweep"])
+    q_neutral = est.q_neutral_.copy()
+    cut, _ = read_recording(path, n_sweep=true - 600, catheter="A", setting="s")
+    with pytest.raises(ValueError, match=r"expected n_rays=8 .*The run was read with "
+                       rf"n_sweep={true - 600} \(its first {true - 600} samples are the sweep\), "
+                       r"and only those rows are here") as info:
+        est.resweep(cut[cut["phase"] == "sweep"].drop(columns=["ref_x", "ref_y", "ref_z"]))
+    assert "n_sweep='auto'" in str(info.value) and "KFold" not in str(info.value)
+    np.testing.assert_array_equal(est.q_neutral_, q_neutral)
+
+
 def test_other_sweep_errors_keep_their_message(bench, tmp_path):
     run, rows, true = _runs(bench.X, 1)[0]
     y = bench.y[(bench.X["run"] == run).to_numpy()].copy()

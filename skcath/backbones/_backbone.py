@@ -24,7 +24,7 @@ from .. import _format as fmt
 from .._base import RecordingsMixin
 from .._runs import run_codes, run_positions
 from .._validation import check_recordings, motor_columns
-from .._sweep_end import N_SWEEP_ATTR, n_sweep_hint
+from .._sweep_end import N_SWEEP_ATTR, naming_n_sweep
 from ..sweep import _check_sweep_references, _find_rays
 from ._hysteresis import identify_play_width, play_operator
 from ._pi import PrandtlIshlinskii, SweepProblem
@@ -120,20 +120,13 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
     times of the run's rows in s, is then needed).
     """
     q_sweep, ref_sweep = q[sweep], ref[sweep]
-    try:
+    with naming_n_sweep(given, q, run):
         rays = _find_rays(
             q_sweep, n_rays=backbone.n_rays, run=run,
             # absent from backbones pickled before the parameter existed
             ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
         )
         _check_sweep_references(ref_sweep, rays, run=run)
-    except ValueError as exc:
-        if given is None:
-            raise
-        message = n_sweep_hint(str(exc), given[0], q, given[1], run)
-        if message == str(exc):
-            raise
-        raise ValueError(message) from None
     if getattr(backbone, "hysteresis", None) is None:
         params, info = backbone._calibrate(q_sweep, ref_sweep, rays, q_sweep)
         return backbone._evaluate(q, params), params, info, 0.0

@@ -202,24 +202,30 @@ def _rest_state(x0, n_state):
     return state
 
 
-def _forward_rows(theta, up, down, x, t, out):
-    """:func:`pi_step` on every row of ``x`` (n, m) from rest at the first row."""
-    n_state = int(theta[0]) + 2
-    state = _rest_state(x[0], n_state)
-    for r in range(x.shape[0]):
-        dt = t[r] - t[r - 1] if r > 0 else 0.0
-        for j in range(x.shape[1]):
-            out[r, j] = pi_step(theta, state, j * n_state, x[r, j], dt, up[j], down[j])
+def _rows_of(step, n_extra):
+    """A loop running the stepping kernel ``step`` on every row of ``x`` (n, m) from rest at the first row.
+
+    ``step`` is :func:`pi_step` or :func:`pi_inverse_step`; each motor has
+    ``K + n_extra`` states (``K = theta[0]`` plays). The loop writes the
+    output of every row into ``out`` (n, m).
+    """
+
+    def rows(theta, up, down, x, t, out):
+        n_state = int(theta[0]) + n_extra
+        state = _rest_state(x[0], n_state)
+        for r in range(x.shape[0]):
+            dt = t[r] - t[r - 1] if r > 0 else 0.0
+            for j in range(x.shape[1]):
+                out[r, j] = step(theta, state, j * n_state, x[r, j], dt, up[j], down[j])
+
+    rows.__doc__ = f":func:`{step.__name__}` on every row of ``x`` (n, m) from rest at the first row."
+    return rows
 
 
-def _inverse_rows(theta, up, down, x, t, out):
-    """:func:`pi_inverse_step` on every row of ``x`` (n, m) from rest at the first row."""
-    n_state = int(theta[0]) + 3
-    state = _rest_state(x[0], n_state)
-    for r in range(x.shape[0]):
-        dt = t[r] - t[r - 1] if r > 0 else 0.0
-        for j in range(x.shape[1]):
-            out[r, j] = pi_inverse_step(theta, state, j * n_state, x[r, j], dt, up[j], down[j])
+#: Forward rows: creep, plays and dead band output per motor (K + 2 states).
+_forward_rows = _rows_of(pi_step, 2)
+#: Inverse rows: creep, inverse plays, dead band output and motor angle (K + 3 states).
+_inverse_rows = _rows_of(pi_inverse_step, 3)
 
 
 def _run_rows(rows, theta, up, down, x, t):

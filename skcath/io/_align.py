@@ -21,6 +21,7 @@ from sklearn.utils._param_validation import Interval, validate_params
 
 from ._convert import recording_from_table
 from ._options import ReadingOptions
+from ._quat import check_read_quat_order
 from ._recording import CSV_SUFFIXES, file_kind, read_table
 
 __all__ = ["AlignmentReport", "align_streams", "check_alignment", "read_streams"]
@@ -406,12 +407,14 @@ def _stream_table(source, label):
         "motors": "no_validation",
         "tracker": "no_validation",
         "max_unmatched": [Interval(numbers.Real, 0, 1, closed="both")],
+        "quat_check": ["boolean"],
     },
     prefer_skip_nested_validation=True,
 )
 def read_streams(
     motors, tracker, *, tolerance, on="t", tracker_on=None, latency=0.0, direction="nearest",
-    sort=False, tracker_time_scale=None, max_unmatched=MAX_UNMATCHED, **read_kwargs,
+    sort=False, tracker_time_scale=None, max_unmatched=MAX_UNMATCHED, quat_check=True,
+    **read_kwargs,
 ):
     """Read a motor log and a tracker log into the long format.
 
@@ -441,6 +444,12 @@ def read_streams(
         by design, e.g. a tracker at 40 Hz and motors at 100 Hz with a
         tolerance under half a tracker period (about 60 % unmatched), stay
         below the default; 1.0 accepts any alignment.
+    quat_check : bool, default=True
+        When the motor log holds several runs of a catheter and the target
+        is computed from raw sensor poses, check the quaternion order
+        against the data as :func:`skcath.io.read_recording` does (a
+        ValueError names the order that fits). One run cannot tell the
+        orders apart, so streams of one run pass. False skips the check.
     **read_kwargs
         Options of :func:`skcath.io.read_recording` (``columns``,
         ``constants``, ``scale``, ``catheter``, ``setting``, ``run``,
@@ -467,7 +476,8 @@ def read_streams(
         As :func:`align_streams` and :func:`skcath.io.read_recording`, and
         when the two clocks count in different units or more than
         ``max_unmatched`` of the motor samples found no tracker sample (see
-        :func:`check_alignment`).
+        :func:`check_alignment`). With ``quat_check``, also when the base
+        quaternions of streams of several runs fit the other order.
     """
     if "rate_hz" in read_kwargs:
         raise ValueError(
@@ -502,5 +512,7 @@ def read_streams(
         max_unmatched=max_unmatched,
         check_units=tracker_time_scale is None,
     )
-    X, y = recording_from_table(aligned, name, stem or "streams", options)
+    X, y, poses = recording_from_table(aligned, name, stem or "streams", options, with_poses=True)
+    if quat_check:
+        check_read_quat_order(X, poses, {**read_kwargs, "columns": columns})
     return X, y, report

@@ -15,7 +15,13 @@ import pandas as pd
 
 from .._quat_order import MIN_SPREAD_RATIO, fit_quat_order, neutral_rows
 
-__all__ = ["NeutralPoses", "check_quat_orders", "declared_order", "neutral_poses"]
+__all__ = [
+    "NeutralPoses",
+    "check_quat_orders",
+    "check_read_quat_order",
+    "declared_order",
+    "neutral_poses",
+]
 
 _BY_NAME = ("base_qw", "base_qx", "base_qy", "base_qz")
 
@@ -131,3 +137,31 @@ def check_quat_orders(parts):
         )
         if fit.fitting is not None and fit.fitting != order:
             raise ValueError(_message(order, fit, file_columns, declared is None))
+
+
+def check_read_quat_order(X, poses, options):
+    """Raise when the base quaternions of one recording read fit the other order.
+
+    The check of :func:`skcath.io.read_recording` (``quat_check``), shared by
+    the readers of one source (a file, aligned streams).
+
+    Parameters
+    ----------
+    X : pandas.DataFrame
+        The recording read (long format).
+    poses : dict or None
+        Its raw sensor poses
+        (:func:`~skcath.io._convert.recording_from_table` with
+        ``with_poses=True``); None when the target was read from ``p_*``
+        columns, which passes.
+    options : mapping
+        The reading options as given (``columns`` and ``quat_order`` are
+        read).
+
+    Raises
+    ------
+    ValueError
+        As :func:`check_quat_orders`.
+    """
+    if poses is not None:
+        check_quat_orders([neutral_poses(X, poses, declared_order(options))])

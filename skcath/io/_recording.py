@@ -18,7 +18,7 @@ from ._convert import recording_from_table
 from ._csv import read_csv_text
 from ._errors import naming_the_file
 from ._options import ReadingOptions
-from ._quat import check_quat_orders, declared_order, neutral_poses
+from ._quat import check_read_quat_order
 
 __all__ = [
     "CSV_SUFFIXES",
@@ -309,9 +309,8 @@ def read_recording(
         tip_offset=tip_offset,
         torques=torques,
     )
-    if quat_check and poses is not None:
-        declared = declared_order({"columns": columns, "quat_order": quat_order})
-        check_quat_orders([neutral_poses(X, poses, declared)])
+    if quat_check:
+        check_read_quat_order(X, poses, {"columns": columns, "quat_order": quat_order})
     return X, y
 
 

@@ -331,6 +331,13 @@ def read_rosbag(
     columns are read only when every joint-state message carries efforts;
     otherwise give them with ``constants``.
 
+    The quaternions are read from the messages' fields by name (``w``,
+    ``x``, ``y``, ``z``), so their order is never declared; and a bag is
+    one run, which cannot tell two orders apart. The data check of the
+    quaternion order of :func:`skcath.io.read_recording` and
+    :func:`skcath.io.read_streams` (``quat_check``) therefore has nothing
+    to check here.
+
     Examples
     --------
     ::

@@ -25,6 +25,7 @@ from sklearn.utils.validation import check_is_fitted
 
 from .. import _format as fmt
 from .._rate import RATE_TOLERANCE, TICK_TOLERANCE, run_at_rate
+from .._sweep_end import N_SWEEP_ATTR, naming_n_sweep
 from ..backbones import (
     BACKBONE_COLUMNS,
     PCCParams,
@@ -553,7 +554,8 @@ class OnlineEstimator(BaseEstimator):
         ValueError
             If the pipeline has been refit or its parameters set since
             :meth:`start` (its residual would not match the kept
-            calibration), or the sweep is not the sweep of one run. The
+            calibration), or the sweep is not the sweep of one run (for a
+            sweep read with ``n_sweep``, the error names it). The
             estimator is then left as it was.
 
         Notes
@@ -626,10 +628,12 @@ class OnlineEstimator(BaseEstimator):
         X = _without_reference(sweep.X)
         q = X[motors].to_numpy(dtype=np.float64)
         tau = X[[c for c in channels if c not in motors]].to_numpy(dtype=np.float64)
-        rays = _find_rays(
-            q, n_rays=backbone.n_rays, ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None),
-            run=run,
-        )
+        given = sweep.X.attrs.get(N_SWEEP_ATTR, {})  # the n_sweep it was read with
+        with naming_n_sweep((given[run], sweep.t) if run in given else None, q, run):
+            rays = _find_rays(
+                q, n_rays=backbone.n_rays,
+                ray_spacing_deg=getattr(backbone, "ray_spacing_deg", None), run=run,
+            )
         # the kept play or PI (none before the play existed, e.g. unpickled) over the new sweep
         played = kept_angles(self, q, sweep.t)
         nominal = _kept_nominal(self.backbone_params_, played)
