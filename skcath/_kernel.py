@@ -7,7 +7,7 @@ imported, the batch evaluations and the streaming engine compile it,
 otherwise the same function runs as Python. numba is imported only when a
 compiled kernel is first needed, never when the package is imported.
 
-Two decorators declare what numba needs to know about a function that
+Three decorators declare what numba needs to know about a function that
 compiled code calls:
 
 * :func:`kernel`: numba compiles the function as it is;
@@ -15,6 +15,9 @@ compiled code calls:
   The Python function stays what Python runs (e.g. one numpy call on a
   vector), the implementation is what compiled code runs (e.g. the loop that
   the compiler vectorises); both compute the same thing.
+* :func:`compiled_by_dtype`: as :func:`compiled_as`, with one
+  implementation for float64 and one for float32, chosen by the type of the
+  first argument.
 
 The declarations take effect when numba is loaded (:func:`load_numba`).
 
