@@ -7,7 +7,7 @@ imported, the batch evaluations and the streaming engine compile it,
 otherwise the same function runs as Python. numba is imported only when a
 compiled kernel is first needed, never when the package is imported.
 
-Two decorators declare what numba needs to know about a function that
+Three decorators declare what numba needs to know about a function that
 compiled code calls:
 
 * :func:`kernel`: numba compiles the function as it is;
@@ -15,6 +15,9 @@ compiled code calls:
   The Python function stays what Python runs (e.g. one numpy call on a
   vector), the implementation is what compiled code runs (e.g. the loop that
   the compiler vectorises); both compute the same thing.
+* :func:`compiled_by_dtype`: as :func:`compiled_as`, with one
+  implementation for float64 and one for float32, chosen by the type of the
+  first argument.
 
 The declarations take effect when numba is loaded (:func:`load_numba`).
 
@@ -47,7 +50,9 @@ __all__ = [
     "cache_folder",
     "compiled",
     "compiled_as",
+    "compiled_by_dtype",
     "evaluate_rows",
+    "float_bits",
     "fma",
     "kernel",
     "load_numba",
@@ -55,6 +60,7 @@ __all__ = [
     "offsets",
     "row_loop",
     "tip_kernel",
+    "with_bits",
 ]
 
 #: Options of every compiled kernel: no Python objects, the GIL released, and
@@ -138,6 +144,21 @@ def compiled_as(implementation):
     return declare
 
 
+def compiled_by_dtype(float64, float32):
+    """Declare the implementations compiled code runs in place of the decorated function, by dtype.
+
+    As :func:`compiled_as`, the implementation chosen by the type of the
+    first argument: ``float32`` for a float32 number or array, ``float64``
+    otherwise.
+    """
+
+    def declare(func):
+        _declare(func, {"float64": float64, "float32": float32})
+        return func
+
+    return declare
+
+
 def _declare(func, implementation):
     with _lock:
         _declared.append((func, implementation))
@@ -152,6 +173,9 @@ def _register_declared():
     for func, implementation in _declared[_state["registered"] :]:
 
         def typer(*args, _implementation=implementation, **kwargs):
+            if isinstance(_implementation, dict):
+                kind = getattr(args[0], "dtype", args[0])
+                return _implementation["float32" if str(kind) == "float32" else "float64"]
             return _implementation
 
         # a primitive's loops are inlined where they are called, as if written there
@@ -188,6 +212,7 @@ def load_numba():
             import numba
 
             _register_fma()
+            _register_bits()
             _state["numba"] = numba
         _register_declared()
         return _state["numba"]
@@ -225,9 +250,66 @@ def _register_fma():
     overload(fma, jit_options=JIT_OPTIONS, inline="always")(typer)
 
 
+def float_bits(x):
+    """The bits of the float ``x`` as a signed integer of its width: int32 for float32, else int64.
+
+    Compiled code reinterprets the register (no instruction); loops of it
+    vectorise.
+    """
+    if isinstance(x, np.float32):
+        return int(x.view(np.int32))
+    return int(np.float64(x).view(np.int64))
+
+
+def with_bits(i, x):
+    """The float of the type of ``x`` whose bits are the low bits of the integer ``i``.
+
+    The inverse of :func:`float_bits`: ``with_bits(float_bits(x), x) == x``.
+    """
+    if isinstance(x, np.float32):
+        return np.int64(i).astype(np.int32).view(np.float32)
+    return np.int64(i).view(np.float64)
+
+
+def _register_bits():
+    """Declare the compiled :func:`float_bits` and :func:`with_bits`: LLVM's bit casts."""
+    from llvmlite import ir
+    from numba.core import types
+    from numba.extending import intrinsic, overload
+
+    @intrinsic
+    def bits_of(typingctx, x):
+        kind = types.int32 if x == types.float32 else types.int64
+
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], ir.IntType(kind.bitwidth))
+
+        return kind(x), codegen
+
+    @intrinsic
+    def float_of(typingctx, i, x):
+        def codegen(context, builder, signature, args):
+            width = x.bitwidth
+            v = context.cast(builder, args[0], i, types.int64)
+            if width < 64:
+                v = builder.trunc(v, ir.IntType(width))
+            return builder.bitcast(v, context.get_value_type(x))
+
+        return x(i, x), codegen
+
+    overload(float_bits, jit_options=JIT_OPTIONS, inline="always")(
+        lambda x: lambda x: bits_of(x))
+    overload(with_bits, jit_options=JIT_OPTIONS, inline="always")(
+        lambda i, x: lambda i, x: float_of(i, x))
+
+
 def _source_files(func):
     """Source files of ``func`` and of every kernel declared so far, sorted."""
-    functions = [func, *(f for pair in _declared for f in pair)]
+    functions = [func]
+    for declared, implementation in _declared:
+        functions.append(declared)
+        functions.extend(implementation.values() if isinstance(implementation, dict)
+                         else [implementation])
     files = {inspect.getsourcefile(inspect.unwrap(f)) for f in functions}
     return sorted(Path(f) for f in files if f)
 

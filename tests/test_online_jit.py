@@ -150,16 +150,37 @@ def test_compiled_exp_and_tanh():
     x = np.concatenate([rng.normal(0.0, 10.0, 2000), rng.uniform(-700.0, 700.0, 2000),
                         [0.0, -0.0, 1e-300, -1e-20, 0.5 * np.log(2.0), 708.0, -708.0]])
     got = x.copy()
-    _exp(got, np.empty(x.size, dtype=np.int64))
+    _exp(got)
     assert_allclose(got, np.exp(x), rtol=1e-15, atol=0)
     # beyond +-708 the argument is clipped: finite, no overflow to inf or 0
     extreme = np.array([-1e4, -750.0, 750.0, 1e4])
-    _exp(extreme, np.empty(4, dtype=np.int64))
+    _exp(extreme)
     assert_allclose(extreme, np.exp([-708.0, -708.0, 708.0, 708.0]), rtol=1e-15)
     y = np.concatenate([x[:2000] / 10.0, [0.0, 1e-300, -1e-9, 30.0, -30.0, 1e4, -1e4]])
     got = y.copy()
-    _tanh(got, np.empty(y.size, dtype=np.int64))
+    _tanh(got)
     assert_allclose(got, np.tanh(y), rtol=0, atol=5e-16)  # a few ulp of 1
+    assert np.abs(got).max() <= 1.0
+
+
+def test_compiled_exp_and_tanh_in_float32():
+    """float32 arrays are evaluated in float32, within a few units in the last place."""
+    rng = np.random.default_rng(3)
+    x = np.concatenate([rng.normal(0.0, 10.0, 2000), rng.uniform(-87.0, 88.0, 2000),
+                        [0.0, -0.0, 1e-30, -1e-20, 0.5 * np.log(2.0), 88.0, -87.0]])
+    x = x.astype(np.float32)
+    got = x.copy()
+    _exp(got)
+    assert got.dtype == np.float32
+    assert_allclose(got, np.exp(x.astype(np.float64)), rtol=3 * 2.0**-23, atol=0)
+    # beyond [-87, 88] the argument is clipped: finite and normal
+    extreme = np.array([-1e4, -100.0, 100.0, 1e4], dtype=np.float32)
+    _exp(extreme)
+    assert_allclose(extreme, np.exp([-87.0, -87.0, 88.0, 88.0]), rtol=3 * 2.0**-23)
+    y = np.concatenate([x[:2000] / 10.0, np.float32([0.0, 1e-30, -1e-6, 30.0, -30.0, 1e4])])
+    got = y.copy()
+    _tanh(got)
+    assert_allclose(got, np.tanh(y.astype(np.float64)), rtol=0, atol=3 * 2.0**-24)
     assert np.abs(got).max() <= 1.0
 
 

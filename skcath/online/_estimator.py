@@ -350,9 +350,9 @@ class OnlineEstimator(BaseEstimator):
     the last sample (``predict`` resamples such a run as a whole).
 
     The two engines run the same step on the same folded weights; they
-    differ in the order of the additions within a matrix-vector product and,
-    with ``dtype="float32"``, in the compiled step evaluating the gates' and
-    the head's nonlinearities in float64. In float64 both match the float64
+    differ in the order of the additions within a matrix-vector product and
+    in the compiled step evaluating the gates' and the head's nonlinearities
+    with exponentials of its own. In float64 both match the float64
     ``predict`` to 1e-9 mm; in float32 they agree to float32 rounding (the
     tests check 1e-5 mm).
 

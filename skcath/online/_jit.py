@@ -7,8 +7,8 @@ packed arrays of the run in flat storage
 no array allocated. Numbers differ from the numpy engine's by rounding only:
 the order of the additions inside a matrix-vector product (each product
 added with one rounding, a fused multiply-add), and the
-nonlinearities, which compiled code evaluates in float64 whatever the
-network's dtype.
+nonlinearities, which compiled code evaluates in the network's dtype with
+exponentials of its own (:mod:`skcath.online._nonlinear`).
 
 numba is an optional dependency (``pip install "skcath[fast]"``); this module
 imports it and is imported only when the numba engine is selected.
@@ -23,7 +23,7 @@ import numba
 import numpy as np
 
 from .._kernel import compiled, kernel, load_numba
-from . import _kernels
+from . import _kernels, _nonlinear
 from ._layout import M_THETA, M_W, FlatStore, PackedStep
 
 __all__ = ["JitStep", "step_kernel"]
@@ -46,8 +46,8 @@ load_numba()
 step_kernel = compiled(_stored_together)
 if step_kernel is None:
     raise ImportError("numba's compiler is disabled (NUMBA_DISABLE_JIT is set)")
-_exp = compiled(_kernels._exp)
-_tanh = compiled(_kernels._tanh)
+_exp = compiled(_nonlinear.exp_array)
+_tanh = compiled(_nonlinear.tanh_array)
 
 
 class JitStep(PackedStep):

@@ -19,9 +19,9 @@ primitives the step calls, each declared with :func:`skcath._kernel.compiled_as`
 Python runs one or a few numpy calls on the preallocated vectors (the fixed
 cost of a numpy call is what a step pays), compiled code runs loops that
 the compiler vectorises, allocate nothing, and evaluate the nonlinearities
-in float64 whatever the network's dtype, with an exponential of its own
-(:func:`_exp`, within 1e-15 relative of :func:`numpy.exp`). The GRU's gate
-equations, the feature assembly and the clip are written here only.
+in place in the network's dtype, with exponentials of their own
+(:mod:`skcath.online._nonlinear`). The GRU's gate equations, the feature
+assembly and the clip are written here only.
 """
 
 from __future__ import annotations
@@ -72,11 +72,9 @@ from ._layout import (
     M_N_HEAD,
     M_N_MOTORS,
     M_NEUTRAL,
-    M_N_SCRATCH,
     M_PLAY,
     M_RESIDUAL,
     M_RESULT,
-    M_SCRATCH,
     M_TMP,
     M_USE_TORQUE,
     M_X,
@@ -90,17 +88,10 @@ from ._layout import (
     RESIDUAL_GRU,
     RESIDUAL_NONE,
 )
+from ._nonlinear import sigmoid, tanh
 from ._pi_stream import pi_angles
 
 __all__ = ["BackboneStep", "step"]
-
-# exp: 1 / log(2), log(2) in two parts (the first ends in 21 zero bits, so that
-# k * _LN2_HI is exact for the |k| <= 1022 used here), Taylor coefficients 1 / j!
-_LOG2E = 1.4426950408889634
-_LN2_HI = 6.93147180369123816490e-01
-_LN2_LO = 1.90821492927058770002e-10
-_EXP_TAYLOR = tuple(1.0 / math.factorial(j) for j in range(14))
-
 
 # ---------------------------------------------------------------------------
 # compiled loops
@@ -190,45 +181,6 @@ def _block(in_w32, at, w, w32, rows, cols, x, y, accumulate, fused):
         _matvec(w, at, rows, cols, x, y, accumulate)
 
 
-@kernel
-def _exp(x, bits):
-    """``x[:] = exp(x)`` (float64), in two loops that the compiler vectorises.
-
-    ``exp(t) = 2**k exp(r)`` with ``k = round(t / ln 2)`` and ``|r| <= ln(2) / 2``
-    (``ln 2`` split in two parts so that ``k ln 2`` is exact); ``exp(r)`` is its
-    Taylor polynomial of degree 13 (truncation below 1e-17 relative), ``2**k``
-    is built from its bits in ``bits`` (int64 scratch of the same length).
-    Arguments are clipped to [-708, 708], where ``exp`` stays normal and finite.
-    """
-    for i in range(x.shape[0]):
-        t = min(max(x[i], -708.0), 708.0)
-        k = math.floor(t * _LOG2E + 0.5)
-        r = (t - k * _LN2_HI) - k * _LN2_LO
-        c = _EXP_TAYLOR
-        x[i] = ((((((((((((c[13] * r + c[12]) * r + c[11]) * r + c[10]) * r + c[9]) * r
-                        + c[8]) * r + c[7]) * r + c[6]) * r + c[5]) * r + c[4]) * r + c[3]) * r
-                  + c[2]) * r + c[1]) * r + c[0]
-        bits[i] = (np.int64(k) + 1023) << 52
-    scale = bits.view(np.float64)
-    for i in range(x.shape[0]):
-        x[i] *= scale[i]
-
-
-@kernel
-def _tanh(y, bits):
-    """``y[:] = tanh(y)`` (float64) as ``1 - 2 / (exp(2 y) + 1)``: absolute error ~1e-16."""
-    for i in range(y.shape[0]):
-        y[i] = 2.0 * y[i]
-    _exp(y, bits)
-    for i in range(y.shape[0]):
-        y[i] = 1.0 - 2.0 / (y[i] + 1.0)
-
-
-def _scratch_compiled(meta, f):
-    n, at = meta[M_N_SCRATCH], meta[M_SCRATCH]
-    return f[at : at + n], f[at + n : at + 2 * n].view(np.int64)
-
-
 def _matvec_compiled(meta, r, w, w32, x, y):
     rows, cols, split = meta[r + MAT_ROWS], meta[r + MAT_COLS], meta[r + MAT_SPLIT]
     fused = meta[M_FUSED]
@@ -255,23 +207,16 @@ def _head_vectors_sliced(meta, buf, rec):
             buf[dst : dst + meta[rec + HEAD_MATRIX + MAT_ROWS]])
 
 
-def _gates_compiled(rz, r_pre, z_pre, t, bits):
-    n = rz.shape[0]
-    for i in range(n):
-        t[i] = -rz[i]
-    _exp(t[:n], bits[:n])
-    for i in range(n):
-        t[i] = 1.0 / (1.0 + t[i])
-    H = r_pre.shape[0]
-    return t[:H], t[H:n]
+def _gates_compiled(rz, r_pre, z_pre):
+    for i in range(rz.shape[0]):
+        rz[i] = sigmoid(rz[i])
+    return r_pre, z_pre
 
 
-def _tanh_of_sum_compiled(a, r, b, t, bits, at):
-    n = a.shape[0]
-    for i in range(n):
-        t[at + i] = a[i] + r[i] * b[i]
-    _tanh(t[at : at + n], bits[at : at + n])
-    return t[at : at + n]
+def _tanh_of_sum_compiled(a, r, b):
+    for i in range(a.shape[0]):
+        a[i] = tanh(a[i] + r[i] * b[i])
+    return a
 
 
 def _blend_compiled(h, z, n, tmp):
@@ -291,27 +236,14 @@ def _accepted_compiled(meta, f, sample):
     return total <= f[F_LIMIT2]
 
 
-def _tanh_inplace_compiled(y, t, bits):
-    n = y.shape[0]
-    for i in range(n):
-        t[i] = y[i]
-    _tanh(t[:n], bits[:n])
-    for i in range(n):
-        y[i] = t[i]
+def _tanh_inplace_compiled(y):
+    for i in range(y.shape[0]):
+        y[i] = tanh(y[i])
 
 
 # ---------------------------------------------------------------------------
 # vector primitives: numpy in Python, the loops above when compiled
 # ---------------------------------------------------------------------------
-@compiled_as(_scratch_compiled)
-def scratch(meta, f):
-    """The float64 and int64 scratch of the compiled nonlinearities (views of ``f``).
-
-    Python's nonlinearities need none: None, None.
-    """
-    return None, None
-
-
 @compiled_as(_matvec_compiled)
 def matvec(meta, r, w, w32, x, y):
     """``y = M @ x`` for the matrix of record ``meta[r:]`` (``MAT_*``)."""
@@ -341,23 +273,19 @@ def head_vectors(meta, buf, rec):
 
 
 @compiled_as(_gates_compiled)
-def gates(rz, r_pre, z_pre, t, bits):
-    """The reset and update gates ``sigmoid(rz)``, ``rz`` holding both pre-activations.
+def gates(rz, r_pre, z_pre):
+    """The reset and update gates ``sigmoid(rz)`` in place, ``rz`` holding both pre-activations.
 
-    Python evaluates them in place (``r_pre``, ``z_pre`` are the two halves of
-    ``rz``); compiled code into the float64 scratch ``t``. Returns the views
-    that hold ``r`` and ``z``.
+    ``r_pre``, ``z_pre`` are the two halves of ``rz``: returns them, which
+    then hold ``r`` and ``z``.
     """
     expit(rz, rz)
     return r_pre, z_pre
 
 
 @compiled_as(_tanh_of_sum_compiled)
-def tanh_of_sum(a, r, b, t, bits, at):
-    """``tanh(a + r * b)``: into ``a`` in Python (``b`` is overwritten), into ``t[at:]`` when compiled.
-
-    Returns the array that holds the result.
-    """
+def tanh_of_sum(a, r, b):
+    """``tanh(a + r * b)`` into ``a``, which it returns (Python overwrites ``b`` too)."""
     np.multiply(r, b, b)
     np.add(a, b, a)
     np.tanh(a, a)
@@ -373,8 +301,8 @@ def blend(h, z, n, tmp):
 
 
 @compiled_as(_tanh_inplace_compiled)
-def tanh_inplace(y, t, bits):
-    """``y = tanh(y)`` (in float64 through the scratch ``t`` when compiled)."""
+def tanh_inplace(y):
+    """``y = tanh(y)``."""
     np.tanh(y, y)
 
 
@@ -420,8 +348,6 @@ def _gru(meta, f, w, w32, buf):
     pre-activations of ``r``, ``z`` and ``W_hn h + b_hn``, one of the
     candidate's matrix with ``[x; 1]`` gives ``W_in x + b_in``.
     """
-    H = meta[M_HIDDEN]
-    t, bits = scratch(meta, f)
     below = buf
     for k in range(meta[M_N_GRU]):
         rec = M_HEADER + GRU_RECORD * k
@@ -430,8 +356,8 @@ def _gru(meta, f, w, w32, buf):
             x[:] = below
         matvec(meta, rec + GRU_GATES, w, w32, v, g)
         matvec(meta, rec + GRU_CAND, w, w32, x1, cand)
-        r, z = gates(rz, r_pre, z_pre, t, bits)
-        n = tanh_of_sum(cand, r, hn, t, bits, 2 * H)
+        r, z = gates(rz, r_pre, z_pre)
+        n = tanh_of_sum(cand, r, hn)
         blend(h, z, n, tmp)
         below = h
 
@@ -440,13 +366,12 @@ def _gru(meta, f, w, w32, buf):
 def _head(meta, f, w, w32, buf):
     """Dense tanh layers and the output layer, each on a vector ``[1; a]``."""
     first = M_HEADER + GRU_RECORD * meta[M_N_GRU]
-    t, bits = scratch(meta, f)
     for k in range(meta[M_N_HEAD]):
         rec = first + HEAD_RECORD * k
         x, y = head_vectors(meta, buf, rec)
         matvec(meta, rec + HEAD_MATRIX, w, w32, x, y)
         if meta[rec + HEAD_TANH]:
-            tanh_inplace(y, t, bits)
+            tanh_inplace(y)
 
 
 @kernel

@@ -13,8 +13,7 @@ from six arrays made once by :class:`PackedStep` when the run starts:
   sized by the number of motors ``N`` at the offsets ``meta[M_LAST]``,
   ``meta[M_PLAY]``, ``meta[M_ANGLES]``: the last accepted sample ``(q1 ..
   qN, tau1 .. tauN)`` (``N`` values without torques), the state of the play
-  (``N``) and the motor angles the backbone reads (``N``); then float64
-  scratch for the compiled nonlinearities at ``meta[M_SCRATCH]`` and the
+  (``N``) and the motor angles the backbone reads (``N``); then the
   neutral motor angles (``N``) at ``meta[M_NEUTRAL]``; with the
   Prandtl-Ishlinskii hysteresis its packed parameters
   (:meth:`~skcath.backbones.PrandtlIshlinskii.pack`) at ``meta[M_PI_THETA]``,
@@ -50,19 +49,18 @@ RESIDUAL_NONE, RESIDUAL_GRU, RESIDUAL_MLP = 0, 1, 2
 # meta header: the kinds, whether the features hold the torques, the offset in
 # buf of the raw step features, GRU layers and hidden size H, the offsets in
 # buf of the gates' pre-activations (3H), of W_in x + b_in (H) and of a scratch
-# vector (H), head layers, the offset in buf of the residual (3), the length n
-# of the float64 scratch of f (then n int64 of scratch); the number of motors
-# N, the channels of a sample (N, or 2N with torques), the offsets in f of the
-# last sample, of the play's state, of the backbone's angles, of the scratch and
-# of the neutral motor angles; the size of f and of buf (where an engine that
+# vector (H), head layers, the offset in buf of the residual (3); the number of
+# motors N, the channels of a sample (N, or 2N with torques), the offsets in f of
+# the last sample, of the play's state, of the backbone's angles and of the
+# neutral motor angles; the size of f and of buf (where an engine that
 # stores them together, :class:`~skcath.online._jit.JitStep`, puts theta after f
 # and w after buf); whether the compiled matrix products fuse their multiply-adds;
 # the offsets in f of the Prandtl-Ishlinskii hysteresis's parameters, dead bands
 # and state (0 without it)
 (M_BACKBONE, M_RESIDUAL, M_USE_TORQUE, M_X, M_N_GRU, M_HIDDEN, M_GATES, M_CAND, M_TMP,
- M_N_HEAD, M_RESULT, M_N_SCRATCH, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
- M_SCRATCH, M_NEUTRAL, M_THETA, M_W, M_FUSED, M_PI_THETA, M_PI_BANDS, M_PI_STATE,
- M_HEADER) = offsets(*(1,) * 25)
+ M_N_HEAD, M_RESULT, M_N_MOTORS, M_N_CHANNELS, M_LAST, M_PLAY, M_ANGLES,
+ M_NEUTRAL, M_THETA, M_W, M_FUSED, M_PI_THETA, M_PI_BANDS, M_PI_STATE,
+ M_HEADER) = offsets(*(1,) * 23)
 
 # matrix record: rows, columns, columns of the first block, then for each of
 # the two column blocks whether it is stored in w32 and its offset (FlatStore)
@@ -255,9 +253,9 @@ class PackedStep:
         n_motors = backbone.n_motors
         n_channels = 2 * n_motors if n_channels is None else int(n_channels)
         header[M_N_MOTORS], header[M_N_CHANNELS] = n_motors, n_channels
-        header[[M_LAST, M_PLAY, M_ANGLES, M_SCRATCH]] = np.add(
+        header[[M_LAST, M_PLAY, M_ANGLES, M_NEUTRAL]] = np.add(
             F_MOTORS, offsets(n_channels, n_motors, n_motors))
-        gru, head, hidden, n_scratch = [], [], [], 1
+        gru, head, hidden = [], [], []
         if weights is not None:
             gru, src, hidden = self._pack_gru(weights.gru, header, vectors, store)
             if not gru:  # MLP: its input [1; x]
@@ -267,9 +265,6 @@ class PackedStep:
             header[M_RESIDUAL] = RESIDUAL_GRU if gru else RESIDUAL_MLP
             header[M_N_GRU] = len(gru) // GRU_RECORD
             header[M_N_HEAD] = len(head) // HEAD_RECORD
-            n_scratch = max(3 * int(header[M_HIDDEN]), *(W.shape[0] for W, _ in weights.head))
-        header[M_N_SCRATCH] = n_scratch
-        header[M_NEUTRAL] = header[M_SCRATCH] + 2 * n_scratch
         pi = self._pi = getattr(backbone, "pi", None)
         header[M_THETA] = header[M_NEUTRAL] + n_motors
         if pi is not None:
