@@ -12,11 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["MODE_FEEDFORWARD", "MODE_INTERNAL_MODEL", "MODE_RESOLVED_RATE", "CompiledStep"]
-
-#: The controller of a compiled step: the feedforward, the feedback as an internal-model
-#: loop (``feedforward=True``), the feedback by resolved rate (``feedforward=False``).
-MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE = 0, 1, 2
+__all__ = ["CompiledStep"]
 
 #: Step of the finite differences of the model's Jacobian (deg) and the solve's tolerance (deg).
 EPS_DEG = SOLVE_TOL_DEG = 1e-3
@@ -43,7 +39,7 @@ class CompiledStep:
     controller : FeedforwardController or FeedbackController
         Started (its ``limits_``, ``dt_``, ``command_``, look-ahead view and seed grid set).
     mode : int
-        :data:`MODE_FEEDFORWARD`, ``MODE_INTERNAL_MODEL`` or ``MODE_RESOLVED_RATE``.
+        :data:`~skcath.control._modes.MODE_FEEDFORWARD`, ``MODE_INTERNAL_MODEL`` or ``MODE_RESOLVED_RATE``.
     margin : float
         How much closer (mm^2) a seed's tip must be to restart the solve from it.
     """

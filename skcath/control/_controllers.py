@@ -15,17 +15,11 @@ from sklearn.utils._param_validation import HasMethods, Interval, StrOptions
 from .. import _format as fmt
 from ..online import OnlineEstimator
 from ..online._sweep import check_sweep
-from ._compiled import (
-    EPS_DEG,
-    MODE_FEEDFORWARD,
-    MODE_INTERNAL_MODEL,
-    MODE_RESOLVED_RATE,
-    SOLVE_TOL_DEG,
-    CompiledStep,
-)
+from ._compiled import EPS_DEG, SOLVE_TOL_DEG, CompiledStep
 from ._hysteresis import hysteresis_inverse
 from ._limits import MotorLimits, UnreachableTargetWarning, check_target, rate_limited, read_obs
 from ._model import ModelInverse, damped_solve
+from ._modes import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
 
 __all__ = ["FeedbackController", "FeedforwardController"]
 
@@ -125,7 +119,7 @@ class _Controller(BaseEstimator):
         return self
 
     def _mode(self):
-        """The controller of the compiled step: :data:`~skcath.control._compiled.MODE_FEEDFORWARD`, ..."""
+        """The controller of the compiled step: :data:`~skcath.control._modes.MODE_FEEDFORWARD`, ..."""
         return MODE_FEEDFORWARD
 
     def _step_compiled(self, target, obs, need_tracker):

@@ -24,8 +24,9 @@ from .._kernel import compiled, offsets
 from ..online._model_view_jit import advance as _advance
 from ..online._model_view_jit import restore as _restore
 from ..online._model_view_jit import tip as _tip
-from ._compiled import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
 from ._hysteresis import TOL_DEG, pi_command
+from ._modes import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
+
 
 __all__ = ["KIND_NONE", "KIND_PI", "KIND_PLAY", "control_kernel", "control_step", "layout"]
 

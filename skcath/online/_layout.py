@@ -38,9 +38,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernel import offsets
+from .._kernel import kernel, offsets
 
-__all__ = ["FlatStore", "MatrixStore", "PackedStep", "PI_FLAG"]
+__all__ = ["FlatStore", "MatrixStore", "PackedStep", "PI_FLAG", "without_hysteresis"]
 
 # kinds of backbone and residual (meta[M_BACKBONE], meta[M_RESIDUAL])
 BACKBONE_PCC, BACKBONE_PDL, BACKBONE_POLYNOMIAL = 0, 1, 2
@@ -86,6 +86,17 @@ F_NOMINAL, F_CLIP, F_PLAY_WIDTH, F_LIMIT2, F_DT, F_MOTORS = offsets(3, 1, 1, 1, 
 #: ``f[F_PLAY_WIDTH]`` of a step that runs the Prandtl-Ishlinskii hysteresis in
 #: place of the play (any negative value does).
 PI_FLAG = -1.0
+
+
+@kernel
+def without_hysteresis(f):
+    """Switch off the hysteresis in front of the backbone in the step's array ``f``.
+
+    The step then reads the angles of its sample as the effective angles.
+    Called before each look-ahead evaluation, whose state is restored
+    after it.
+    """
+    f[F_PLAY_WIDTH] = 0.0
 
 
 class _Arena:

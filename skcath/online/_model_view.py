@@ -12,7 +12,7 @@ packed step (the one function both engines run,
   model, with its hysteresis, by samples commanded but not observed yet;
   evaluations start from the state reached;
 * :meth:`ModelView.tip` is the model's tip at effective angles from that
-  state, the hysteresis skipped (:func:`without_hysteresis`, the one place
+  state, the hysteresis skipped (:func:`~skcath.online._layout.without_hysteresis`, the one place
   that switches it off), the state restored after the evaluation;
 * :meth:`ModelView.restore` gives the stream its state back.
 
@@ -26,20 +26,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._kernel import kernel
-from ._layout import F_PLAY_WIDTH, M_ANGLES
+from ._layout import F_PLAY_WIDTH, M_ANGLES, without_hysteresis
 
-__all__ = ["ModelView", "without_hysteresis"]
-
-
-@kernel
-def without_hysteresis(f):
-    """Switch off the hysteresis in front of the backbone in the step's array ``f``.
-
-    The step then reads the angles of its sample as the effective angles.
-    Called before each look-ahead evaluation, whose state is restored
-    after it.
-    """
-    f[F_PLAY_WIDTH] = 0.0
+__all__ = ["ModelView"]
 
 
 class ModelView:

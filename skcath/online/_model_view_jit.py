@@ -16,8 +16,7 @@ from __future__ import annotations
 
 from .._kernel import compiled, kernel
 from ._jit import step_kernel
-from ._layout import M_ANGLES
-from ._model_view import without_hysteresis
+from ._layout import M_ANGLES, without_hysteresis
 
 __all__ = ["advance", "kernels", "restore", "tip"]
 
