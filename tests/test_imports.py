@@ -24,6 +24,7 @@ PACKAGE_DIR = Path(skcath.__file__).parent
 OPTIONAL = {
     "dask",
     "distributed",
+    "llvmlite",  # numba's own code generator, installed with numba
     "matplotlib",
     "numba",
     "onnx",

@@ -38,6 +38,7 @@ from ..frames import _sweep_frame
 from ..residuals._context import sweep_context
 from ..sweep import _find_rays
 from ._fast import BackboneStep, NumpyStep
+from ._model_view import ModelView
 from ._pi_stream import kept_angles, pi_step_of, start_hysteresis
 from ._pipeline import STEP_BACKBONES, check_online_pipeline
 from ._sample import as_real, real_sample
@@ -956,8 +957,6 @@ class OnlineEstimator(BaseEstimator):
 
     def _model_view(self):
         """Look-ahead evaluations of the started step for a controller: a :class:`~skcath.online._model_view.ModelView`."""
-        from ._model_view import ModelView
-
         self._check_started()
         return ModelView(self._packed, self._backbone)
 
