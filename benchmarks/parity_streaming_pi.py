@@ -24,7 +24,6 @@ Usage (from the repository root)::
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import sys
 import tempfile
@@ -36,16 +35,14 @@ from sklearn.pipeline import Pipeline
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from _helpers import instrument, tiny_residual  # noqa: E402
+from _helpers import instrument, pi_pipelines, tiny_residual  # noqa: E402
 
-from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone  # noqa: E402
+from skcath.backbones import PDLBackbone  # noqa: E402
 from skcath.online import OnlineEstimator, export  # noqa: E402
-from skcath.residuals import GRUResidual, MLPResidual, NoResidual  # noqa: E402
+from skcath.residuals import GRUResidual, NoResidual  # noqa: E402
 
 CASES = [("pdl", "gru", 2), ("pdl", "none", 2), ("pcc", "mlp", 2), ("polynomial", "none", 1),
          ("polynomial", "gru", 3)]
-BACKBONES = {"pcc": PCCBackbone, "pdl": PDLBackbone, "polynomial": PolynomialBackbone}
-RESIDUALS = {"gru": GRUResidual, "mlp": MLPResidual, "none": NoResidual}
 
 
 def _onnx(est, folder, samples, dt):
@@ -66,17 +63,7 @@ def _onnx(est, folder, samples, dt):
 
 
 def _case(backbone_name, kind, n_motors, n_motion, folder):
-    train, y = instrument(n_motors, ["S02"], 200)
-    run, _ = instrument(n_motors, ["S05"], n_motion)
-    backbone = BACKBONES[backbone_name](hysteresis="pi").fit(train, y)
-    Est = RESIDUALS[kind]
-    residual = Est() if Est is NoResidual else tiny_residual(Est, max_epochs=1)
-    pipe = Pipeline([("backbone", backbone),
-                     ("residual", residual.fit(backbone.transform(train), y))])
-    pipe64 = copy.deepcopy(pipe)
-    if hasattr(pipe64["residual"], "module_"):
-        pipe64["residual"].module_.double()
-    motion = (run["phase"] == "motion").to_numpy()
+    pipe, pipe64, run, motion = pi_pipelines(backbone_name, kind, n_motors, n_motion)
     pred32, pred64 = pipe.predict(run)[motion], pipe64.predict(run)[motion]
     row = [f"{backbone_name}, {kind}, {n_motors} motor(s)"]
     for engine in ("numba", "numpy"):

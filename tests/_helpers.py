@@ -137,3 +137,32 @@ def instrument(n_motors, settings, n_motion=None, *, torques=True):
     if not torques:
         X = X.drop(columns=list(motor_columns(X)[1]))
     return X, np.asarray(bench.y, dtype=float)[keep]
+
+
+def pi_pipelines(backbone_name, kind, n_motors, n_motion):
+    """A pipeline of a backbone with ``hysteresis="pi"`` fitted on S02, its float64 copy, and a S05 run.
+
+    ``backbone_name`` is ``"pcc"``, ``"pdl"`` or ``"polynomial"``; ``kind`` is
+    ``"gru"``, ``"mlp"`` or ``"none"``. Returns ``pipe, pipe64, run, motion``
+    (``motion``: the boolean mask of the run's motion rows).
+    """
+    import copy
+
+    from sklearn.pipeline import Pipeline
+
+    from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone
+    from skcath.residuals import MLPResidual, NoResidual
+
+    backbones = {"pcc": PCCBackbone, "pdl": PDLBackbone, "polynomial": PolynomialBackbone}
+    residuals = {"gru": GRUResidual, "mlp": MLPResidual, "none": NoResidual}
+    train, y = instrument(n_motors, ["S02"], 200)
+    run, _ = instrument(n_motors, ["S05"], n_motion)
+    backbone = backbones[backbone_name](hysteresis="pi").fit(train, y)
+    Est = residuals[kind]
+    residual = Est() if Est is NoResidual else tiny_residual(Est, max_epochs=1)
+    pipe = Pipeline([("backbone", backbone),
+                     ("residual", residual.fit(backbone.transform(train), y))])
+    pipe64 = copy.deepcopy(pipe)
+    if hasattr(pipe64["residual"], "module_"):
+        pipe64["residual"].module_.double()
+    return pipe, pipe64, run, (run["phase"] == "motion").to_numpy()

@@ -15,28 +15,22 @@ identified hysteresis is checked to be a PI that is neither the identity
 nor a single play, and one case to have creep.
 """
 
-import copy
 import io
 import pickle
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
-from sklearn.pipeline import Pipeline
 
 from skcath import persist
-from skcath.backbones import PCCBackbone, PDLBackbone, PolynomialBackbone
 from skcath.online import OnlineEstimator, export, step_state
-from skcath.residuals import GRUResidual, MLPResidual, NoResidual
 
-from _helpers import instrument, tiny_residual
+from _helpers import instrument, pi_pipelines
 
 #: the float64 step against the float64 predict (mm)
 STEP_TOL_MM = 1e-6
 #: the exported float64 step against the float32 predict (mm)
 EXPORT_TOL_MM = 1e-5
-BACKBONES = {"pcc": PCCBackbone, "pdl": PDLBackbone, "polynomial": PolynomialBackbone}
-RESIDUALS = {"gru": GRUResidual, "mlp": MLPResidual, "none": NoResidual}
 N_MOTION = 60
 
 CASES = [("pdl", "gru", 2), ("pcc", "mlp", 2), ("polynomial", "none", 1),
@@ -66,17 +60,7 @@ def fitted():
     def get(case):
         if case not in cache:
             backbone_name, kind, n_motors = case
-            train, y = instrument(n_motors, ["S02"], 200)
-            run, _ = instrument(n_motors, ["S05"], N_MOTION)
-            backbone = BACKBONES[backbone_name](hysteresis="pi").fit(train, y)
-            Est = RESIDUALS[kind]
-            residual = Est() if Est is NoResidual else tiny_residual(Est, max_epochs=1)
-            pipe = Pipeline([("backbone", backbone),
-                             ("residual", residual.fit(backbone.transform(train), y))])
-            pipe64 = copy.deepcopy(pipe)
-            if hasattr(pipe64["residual"], "module_"):
-                pipe64["residual"].module_.double()
-            motion = (run["phase"] == "motion").to_numpy()
+            pipe, pipe64, run, motion = pi_pipelines(backbone_name, kind, n_motors, N_MOTION)
             est = OnlineEstimator(pipe64, engine="numpy").start(run[~motion])
             cache[case] = _Case(pipe=pipe, pipe64=pipe64, run=run, motion=motion, est=est)
         return cache[case]
