@@ -547,10 +547,8 @@ def _random_pi(rng, n_motors=2):
 def _pi_after_motion(model, rng, n=40, dt=0.1):
     """The forward state and effective angles of ``model`` after a random walk of the motors, and the last angles."""
     q = np.cumsum(rng.normal(0.0, 3.0, (n, model.n_motors)), axis=0)
-    state = model.initial_state(q[0])
-    for row in q[1:]:
-        state, v = model.step(state, row, dt)
-    return state, v, q[-1]
+    v, state = model.forward(q, np.arange(n) * dt, return_state=True)
+    return state, v[-1], q[-1]
 
 
 def test_pi_inverse_commands_the_wanted_effective_angle_from_the_streams_state():

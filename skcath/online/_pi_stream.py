@@ -2,9 +2,10 @@
 
 ``start`` takes the run's identified :class:`~skcath.backbones.PrandtlIshlinskii`
 (:func:`calibrate_pi`, as the backbone's ``calibrate`` identifies it on the
-sweep) and its state after the sweep (:func:`run_from_rest`: the sweep's
-motor angles through the model from rest at its first row, as ``predict``
-runs the run's rows). :class:`PIStep` holds what the packed step reads: the
+sweep) and its state after the sweep (:func:`kept_angles`: the sweep's
+motor angles through the model from rest at its first row,
+:meth:`~skcath.backbones.PrandtlIshlinskii.forward` as ``predict`` runs the
+run's rows, with its final state). :class:`PIStep` holds what the packed step reads: the
 packed parameters, the dead band up and down of each motor, the state after
 the sweep and the step's nominal time step. :func:`pi_angles` is the part of
 :func:`~skcath.online._kernels.step` that runs it: one
@@ -44,7 +45,6 @@ __all__ = [
     "pi_angles",
     "pi_spec",
     "pi_step_of",
-    "run_from_rest",
     "start_hysteresis",
     "sweep_period",
 ]
@@ -75,24 +75,6 @@ def pi_spec(model):
     return {"thresholds": np.array(model.thresholds), "weights": np.array(model.weights),
             "dead_band": float(model.dead_band), "asymmetry": np.array(model.asymmetry),
             "creep_gain": float(model.creep_gain), "creep_tau_s": float(model.creep_tau_s)}
-
-
-def run_from_rest(model, q, t):
-    """Effective angles (n, n_motors; deg) of ``q`` at times ``t`` from rest, and the final state.
-
-    The state is that of :func:`~skcath.backbones.pi_step` (``K + 2`` per
-    motor), after the last row: where the step continues the run.
-    """
-    state = model.initial_state(q[0])
-    up, down = model._bands()
-    theta = model.pack()
-    size = model.thresholds.size + 2
-    z = np.empty_like(q)
-    for r in range(len(q)):
-        dt = float(t[r] - t[r - 1]) if r > 0 else 0.0
-        for j in range(q.shape[1]):
-            z[r, j] = pi_step(theta, state, j * size, float(q[r, j]), dt, up[j], down[j])
-    return z, state
 
 
 def calibrate_pi(backbone, sweep):
@@ -196,7 +178,7 @@ def kept_angles(est, q, t):
     spec = getattr(est, "_pi_spec", None)
     if spec is None:
         return play_operator(q, getattr(est, "play_width_", 0.0))
-    z, state = run_from_rest(PrandtlIshlinskii(**spec), q, t)
+    z, state = PrandtlIshlinskii(**spec).forward(q, t, return_state=True)
     est._pi_start = state
     est._sweep_period = sweep_period(t, None)
     return z
