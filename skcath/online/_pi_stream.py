@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from .. import _format as fmt
-from .._kernel import kernel
+from .._kernel import compiled_as
 from ..backbones import (
     PCCBackbone,
     PDLBackbone,
@@ -50,14 +50,7 @@ __all__ = [
 ]
 
 
-@kernel
-def pi_angles(meta, f, sample):
-    """The effective angles (deg) of the sample's motor angles into ``f[meta[M_ANGLES]:]``.
-
-    One :func:`~skcath.backbones.pi_step` per motor on the packed PI of
-    ``f`` (``meta[M_PI_THETA]``, ``meta[M_PI_BANDS]``, ``meta[M_PI_STATE]``),
-    its state updated in place, with the time step ``f[F_DT]`` (s).
-    """
+def _pi_angles_compiled(meta, f, sample):
     n = meta[M_N_MOTORS]
     angles = meta[M_ANGLES]
     bands = meta[M_PI_BANDS]
@@ -68,6 +61,35 @@ def pi_angles(meta, f, sample):
     for j in range(n):
         f[angles + j] = pi_step(theta, f, at + j * size, sample[j], dt, f[bands + j],
                                 f[bands + n + j])
+
+
+@compiled_as(_pi_angles_compiled)
+def pi_angles(meta, f, sample):
+    """The effective angles (deg) of the sample's motor angles into ``f[meta[M_ANGLES]:]``.
+
+    One :func:`~skcath.backbones.pi_step` per motor on the packed PI of
+    ``f`` (``meta[M_PI_THETA]``, ``meta[M_PI_BANDS]``, ``meta[M_PI_STATE]``),
+    its state updated in place, with the time step ``f[F_DT]`` (s).
+    Compiled code steps on ``f`` itself; Python reads the parameters, the
+    dead bands and the state as one list (Python reads a list's items
+    faster than an array's, and computes on floats as on float64: the same
+    numbers) and writes the state back.
+    """
+    n = meta[M_N_MOTORS]
+    first = meta[M_PI_THETA]
+    bands = meta[M_PI_BANDS] - first
+    at = meta[M_PI_STATE]
+    size = int(f[first]) + 2
+    end = at + n * size
+    pi = f[first:end].tolist()
+    theta = pi[:bands]
+    dt = float(f[F_DT])
+    angles = meta[M_ANGLES]
+    at -= first
+    for j in range(n):
+        f[angles + j] = pi_step(theta, pi, at + j * size, sample[j], dt, pi[bands + j],
+                                pi[bands + n + j])
+    f[meta[M_PI_STATE]:end] = pi[at:]
 
 
 def pi_spec(model):
