@@ -81,14 +81,12 @@ def pi_angles(meta, f, sample):
     at = meta[M_PI_STATE]
     size = int(f[first]) + 2
     end = at + n * size
-    pi = f[first:end].tolist()
-    theta = pi[:bands]
+    pi = f[first:end].tolist()  # the packed parameters first: pi_step reads them from index 0
     dt = float(f[F_DT])
     angles = meta[M_ANGLES]
     at -= first
     for j in range(n):
-        f[angles + j] = pi_step(theta, pi, at + j * size, sample[j], dt, pi[bands + j],
-                                pi[bands + n + j])
+        f[angles + j] = pi_step(pi, pi, at + j * size, sample[j], dt, pi[bands + j], pi[bands + n + j])
     f[meta[M_PI_STATE]:end] = pi[at:]
 
 
