@@ -212,6 +212,35 @@ def test_unreachable_target_is_clipped_with_a_warning(runs, pipes, Controller):
             assert np.all(command >= [-20.0, -30.0]) and np.all(command <= [20.0, 10.0])
 
 
+@pytest.mark.parametrize("engine", ["numpy", pytest.param("numba", marks=pytest.mark.skipif(
+    importlib.util.find_spec("numba") is None, reason="the numba engine needs numba"))])
+@pytest.mark.parametrize("Controller", [FeedforwardController, FeedbackController])
+def test_unreachable_warning_as_error_leaves_the_step_complete(runs, pipes, Controller, engine):
+    """With the warning an error, the step raises once complete: its command is ``command_``, as without the error."""
+    _, _, sweep, motion = runs
+    pipe = pipes(PCCBackbone, "play")
+    tips = _model_tips(pipe, sweep, motion)
+    targets = np.vstack([tips[:10], np.tile([[80.0, 80.0, 0.0]], (3, 1)), tips[10:20]])
+    records = {}
+    for action in ("ignore", "error"):
+        controller = Controller(pipe, engine=engine, motor_limits=[[-20.0, 20.0], [-30.0, 10.0]]).start(sweep)
+        plant, record, raised = ModelPlant(pipe, sweep), [], 0
+        with warnings.catch_warnings():
+            warnings.simplefilter(action, UnreachableTargetWarning)
+            for target in targets:
+                try:
+                    command = controller.step(target, plant.obs)
+                except UnreachableTargetWarning:
+                    raised += 1
+                    command = controller.command_.copy()  # the step's command, issued
+                record.append([*command, *controller.aimed_, *controller.estimate_])
+                plant.step(command)
+        records[action] = (np.array(record), controller.n_unreachable_, raised)
+    assert records["error"][2] == records["error"][1] == records["ignore"][1] == 3
+    # the commands, aims and estimates go on as if the warning had not been an error
+    assert np.array_equal(records["error"][0], records["ignore"][0])
+
+
 def test_steps_accept_series_dicts_and_sequences_alike(runs, pipes):
     _, _, sweep, motion = runs
     pipe = pipes(PCCBackbone)
@@ -518,10 +547,8 @@ def _random_pi(rng, n_motors=2):
 def _pi_after_motion(model, rng, n=40, dt=0.1):
     """The forward state and effective angles of ``model`` after a random walk of the motors, and the last angles."""
     q = np.cumsum(rng.normal(0.0, 3.0, (n, model.n_motors)), axis=0)
-    state = model.initial_state(q[0])
-    for row in q[1:]:
-        state, v = model.step(state, row, dt)
-    return state, v, q[-1]
+    v, state = model.forward(q, np.arange(n) * dt, return_state=True)
+    return state, v[-1], q[-1]
 
 
 def test_pi_inverse_commands_the_wanted_effective_angle_from_the_streams_state():

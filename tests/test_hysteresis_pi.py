@@ -2,7 +2,8 @@
 
 The operator: one term is the play; weights and parameters are checked;
 the inverse PI undoes the forward PI, the full inverse is a right inverse
-with dead band and creep; the stepping forms equal the row forms; the creep
+with dead band and creep; the stepping forms equal the row forms and
+continue them from the rows' final state; the creep
 reads the times, not the sample count. The identification recovers a known
 PI from a sweep simulated through it; a sweep too flat or too short falls
 back to no hysteresis with a warning naming the run; a sweep without
@@ -139,6 +140,27 @@ def test_rows_run_alike_as_python_and_compiled(monkeypatch):
     assert_allclose(model.forward(q, t), v, rtol=0, atol=1e-12)
     assert_allclose(model.inverse(q, t), back, rtol=0, atol=1e-12)
     assert_allclose(model.forward(model.inverse(q, t), t), q, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_forward_returns_the_state_the_step_continues_from(monkeypatch, compiled):
+    """The rows' final state, stepped on, gives the rows of the whole run, compiled or not."""
+    from skcath.backbones import _pi
+
+    if not compiled:
+        monkeypatch.setattr(_pi, "compiled", lambda func: None)
+    model = _model()
+    q = _walk(6, n=200)
+    t = _times(len(q))
+    head, state = model.forward(q[:120], t[:120], return_state=True)
+    assert_array_equal(head, model.forward(q[:120], t[:120]))
+    assert state.shape == (2 * (GRID.size + 2),)
+    tail = []
+    for i in range(120, len(q)):
+        state, v = model.step(state, q[i], t[i] - t[i - 1])
+        tail.append(v)
+    assert_array_equal(np.vstack([head, tail]), model.forward(q, t))
+    assert model.forward(q[:0], t[:0], return_state=True)[1] is None
 
 
 def test_creep_reads_seconds_not_samples():

@@ -112,6 +112,26 @@ def test_step_matches_predict(fitted, case, engine):
     assert_allclose(_stream(est, samples, times), d["predict64"], rtol=0, atol=STEP_TOL_MM)
 
 
+@pytest.mark.parametrize("case", [CASES[2], CASES[3]], ids=_id)
+def test_numpy_engines_pi_steps_the_packed_arrays_as_the_kernel(fitted, case):
+    """The PI on lists (the numpy engine's) leaves ``f`` as the kernel stepping ``f`` itself, bit for bit."""
+    from skcath.online._layout import F_DT
+    from skcath.online._pi_stream import _pi_angles_compiled, pi_angles
+
+    c = fitted(case)
+    est = c["est"]
+    meta, f = est._packed.call.args[:2]
+    samples, _ = _samples(est, c["run"], c["motion"])
+    on_lists, on_array = f.copy(), f.copy()
+    rng = np.random.default_rng(0)
+    for sample in samples.tolist():
+        on_lists[F_DT] = on_array[F_DT] = rng.uniform(0.0, 0.3)
+        pi_angles(meta, on_lists, tuple(sample))
+        _pi_angles_compiled(meta, on_array, tuple(sample))  # run as Python, on the array
+    assert_array_equal(on_lists, on_array)
+    assert not np.array_equal(on_lists, f)  # the state and the angles moved
+
+
 @pytest.mark.parametrize("engine", ["numba", "numpy"])
 def test_creep_reads_the_samples_times(fitted, engine):
     """Uneven times (no learned residual, whose model would resample them): the creep follows them."""

@@ -207,7 +207,8 @@ def _rows_of(step, n_extra):
 
     ``step`` is :func:`pi_step` or :func:`pi_inverse_step`; each motor has
     ``K + n_extra`` states (``K = theta[0]`` plays). The loop writes the
-    output of every row into ``out`` (n, m).
+    output of every row into ``out`` (n, m) and returns the states after
+    the last row (``m * (K + n_extra)``), where ``step`` continues the run.
     """
 
     def rows(theta, up, down, x, t, out):
@@ -217,8 +218,10 @@ def _rows_of(step, n_extra):
             dt = t[r] - t[r - 1] if r > 0 else 0.0
             for j in range(x.shape[1]):
                 out[r, j] = step(theta, state, j * n_state, x[r, j], dt, up[j], down[j])
+        return state
 
-    rows.__doc__ = f":func:`{step.__name__}` on every row of ``x`` (n, m) from rest at the first row."
+    rows.__doc__ = (f":func:`{step.__name__}` on every row of ``x`` (n, m) from rest at the first row; "
+                    "the states after the last row.")
     return rows
 
 
@@ -229,13 +232,15 @@ _inverse_rows = _rows_of(pi_inverse_step, 3)
 
 
 def _run_rows(rows, theta, up, down, x, t):
+    """The outputs of a :func:`_rows_of` loop on ``x`` (n, m) at times ``t`` and its final states (None without rows)."""
     x = np.ascontiguousarray(x, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
     out = np.empty_like(x)
+    state = None
     if len(x):
         fast = compiled(rows)
-        (fast or rows)(theta, np.asarray(up, float), np.asarray(down, float), x, t, out)
-    return out
+        state = (fast or rows)(theta, np.asarray(up, float), np.asarray(down, float), x, t, out)
+    return out, state
 
 
 def _check_angles(x, t, name):
@@ -386,19 +391,26 @@ class PrandtlIshlinskii:
         up, down = self._bands(extra)
         return np.concatenate([[r.size, self.creep_gain, self.creep_tau_s], r, u]), up, down
 
-    def forward(self, q, t):
-        """Effective angles of one run's motor angles ``q`` (n, n_motors; deg) at times ``t`` (s)."""
+    def forward(self, q, t, *, return_state=False):
+        """Effective angles of one run's motor angles ``q`` (n, n_motors; deg) at times ``t`` (s).
+
+        From rest at the first row (:meth:`initial_state`). With
+        ``return_state=True`` also the state after the last row, from which
+        :meth:`step` continues the run (``K + 2`` per motor, deg; None
+        without rows): ``(v, state)``.
+        """
         q, t = _check_angles(q, t, "q")
         self._check_motors(q)
         up, down = self._bands()
-        return _run_rows(_forward_rows, self.pack(), up, down, q, t)
+        v, state = _run_rows(_forward_rows, self.pack(), up, down, q, t)
+        return (v, state) if return_state else v
 
     def inverse(self, v, t):
         """Motor angles (deg) that give the effective angles ``v`` (n, n_motors; deg) at times ``t`` (s)."""
         v, t = _check_angles(v, t, "v")
         self._check_motors(v)
         theta, up, down = self.pack_inverse()
-        return _run_rows(_inverse_rows, theta, up, down, v, t)
+        return _run_rows(_inverse_rows, theta, up, down, v, t)[0]
 
     def _check_motors(self, x):
         if x.shape[1] != self.n_motors:

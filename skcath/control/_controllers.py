@@ -112,6 +112,7 @@ class _Controller(BaseEstimator):
         self._torques = tuple(float(v) for v in est._last_sweep[n:])
         self.aimed_ = self.estimate_ = None
         self.n_unreachable_ = 0
+        self._unreachable = None  # (target, tip, miss) of the step under way, warned of at its end
         self._limited = False
         self._issued = deque([self.command_.copy()] * self.latency, maxlen=max(self.latency, 1))
         self._reset_feedback()
@@ -133,10 +134,17 @@ class _Controller(BaseEstimator):
         self._limited = step.limited
         if self._mode() != MODE_FEEDFORWARD:
             self.correction_ = step.correction.copy()
+        self._unreachable = None
         if miss > self.reach_tol_mm:
             self.n_unreachable_ += 1
-            _warn_unreachable(target - step.correction, self.aimed_, miss, self.reach_tol_mm, stacklevel=3)
+            self._unreachable = (target - step.correction, self.aimed_, miss)
         return step.command.copy()
+
+    def _warn_if_unreachable(self):
+        """Warn of the step's target if it was out of reach: the step's last act, its state complete."""
+        unreachable, self._unreachable = self._unreachable, None
+        if unreachable is not None:
+            _warn_unreachable(*unreachable, self.reach_tol_mm, stacklevel=3)
 
     def _reset_feedback(self):
         """Feedback state set by :meth:`start`; none for the feedforward."""
@@ -198,9 +206,10 @@ class _Controller(BaseEstimator):
         self._z_solution = z
         d = target - tip
         miss = math.sqrt(float(d @ d))
-        if miss > self.reach_tol_mm:
+        self._unreachable = None
+        if miss > self.reach_tol_mm:  # warned of once the step is complete
             self.n_unreachable_ += 1
-            _warn_unreachable(target, tip, miss, self.reach_tol_mm, stacklevel=3)
+            self._unreachable = (target, tip, miss)
         self.aimed_ = tip
         return z, tip, J
 
@@ -286,6 +295,20 @@ _STEP_DOC = """Motor command for the next sample.
         -------
         command : ndarray of shape (n_motors,)
             Motor angles to command (deg), within the motor and rate limits.
+
+        Warns
+        -----
+        UnreachableTargetWarning
+            When the target lies farther than ``reach_tol_mm`` from every
+            reachable model tip. The warning is the step's last act, issued
+            once the step is complete: the estimator has taken the sample,
+            the command is issued (``command_``, steering to ``aimed_``) and
+            ``n_unreachable_`` counts the target. Where warnings are errors
+            (``warnings.simplefilter("error")``) the step raises it in place
+            of returning the command, and the controller's state is that of
+            the completed step, as when the warning is not an error: the
+            command to send is ``command_``, and the next step continues
+            from it.
         """
 
 
@@ -327,13 +350,16 @@ class FeedforwardController(_Controller):
         self._check_started()
         target = check_target(target)
         if self._compiled is not None:
-            return self._step_compiled(target, obs, False)
-        self._observe(obs)
-        try:
-            z, _, _ = self._aim(target)
-            return self._issue(z)
-        finally:
-            self.model_.end()
+            command = self._step_compiled(target, obs, False)
+        else:
+            self._observe(obs)
+            try:
+                z, _, _ = self._aim(target)
+                command = self._issue(z)
+            finally:
+                self.model_.end()
+        self._warn_if_unreachable()
+        return command
 
     step.__doc__ = _STEP_DOC
 
@@ -431,13 +457,16 @@ class FeedbackController(_Controller):
         self._check_started()
         target = check_target(target)
         if self._compiled is not None:
-            return self._step_compiled(target, obs, self.close_on == "tracker")
-        aimed_before = self._aims[0]  # the aim of the command the observation shows
-        estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
-        try:
-            return self._feedback(target, aimed_before, estimate if tip is None else tip)
-        finally:
-            self.model_.end()
+            command = self._step_compiled(target, obs, self.close_on == "tracker")
+        else:
+            aimed_before = self._aims[0]  # the aim of the command the observation shows
+            estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
+            try:
+                command = self._feedback(target, aimed_before, estimate if tip is None else tip)
+            finally:
+                self.model_.end()
+        self._warn_if_unreachable()
+        return command
 
     step.__doc__ = _STEP_DOC
 

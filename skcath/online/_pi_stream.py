@@ -2,9 +2,10 @@
 
 ``start`` takes the run's identified :class:`~skcath.backbones.PrandtlIshlinskii`
 (:func:`calibrate_pi`, as the backbone's ``calibrate`` identifies it on the
-sweep) and its state after the sweep (:func:`run_from_rest`: the sweep's
-motor angles through the model from rest at its first row, as ``predict``
-runs the run's rows). :class:`PIStep` holds what the packed step reads: the
+sweep) and its state after the sweep (:func:`kept_angles`: the sweep's
+motor angles through the model from rest at its first row,
+:meth:`~skcath.backbones.PrandtlIshlinskii.forward` as ``predict`` runs the
+run's rows, with its final state). :class:`PIStep` holds what the packed step reads: the
 packed parameters, the dead band up and down of each motor, the state after
 the sweep and the step's nominal time step. :func:`pi_angles` is the part of
 :func:`~skcath.online._kernels.step` that runs it: one
@@ -25,7 +26,7 @@ import math
 import numpy as np
 
 from .. import _format as fmt
-from .._kernel import kernel
+from .._kernel import compiled_as
 from ..backbones import (
     PCCBackbone,
     PDLBackbone,
@@ -44,20 +45,12 @@ __all__ = [
     "pi_angles",
     "pi_spec",
     "pi_step_of",
-    "run_from_rest",
     "start_hysteresis",
     "sweep_period",
 ]
 
 
-@kernel
-def pi_angles(meta, f, sample):
-    """The effective angles (deg) of the sample's motor angles into ``f[meta[M_ANGLES]:]``.
-
-    One :func:`~skcath.backbones.pi_step` per motor on the packed PI of
-    ``f`` (``meta[M_PI_THETA]``, ``meta[M_PI_BANDS]``, ``meta[M_PI_STATE]``),
-    its state updated in place, with the time step ``f[F_DT]`` (s).
-    """
+def _pi_angles_compiled(meta, f, sample):
     n = meta[M_N_MOTORS]
     angles = meta[M_ANGLES]
     bands = meta[M_PI_BANDS]
@@ -70,29 +63,38 @@ def pi_angles(meta, f, sample):
                                 f[bands + n + j])
 
 
+@compiled_as(_pi_angles_compiled)
+def pi_angles(meta, f, sample):
+    """The effective angles (deg) of the sample's motor angles into ``f[meta[M_ANGLES]:]``.
+
+    One :func:`~skcath.backbones.pi_step` per motor on the packed PI of
+    ``f`` (``meta[M_PI_THETA]``, ``meta[M_PI_BANDS]``, ``meta[M_PI_STATE]``),
+    its state updated in place, with the time step ``f[F_DT]`` (s).
+    Compiled code steps on ``f`` itself; Python reads the parameters, the
+    dead bands and the state as one list (Python reads a list's items
+    faster than an array's, and computes on floats as on float64: the same
+    numbers) and writes the state back.
+    """
+    n = meta[M_N_MOTORS]
+    first = meta[M_PI_THETA]
+    bands = meta[M_PI_BANDS] - first
+    at = meta[M_PI_STATE]
+    size = int(f[first]) + 2
+    end = at + n * size
+    pi = f[first:end].tolist()  # the packed parameters first: pi_step reads them from index 0
+    dt = float(f[F_DT])
+    angles = meta[M_ANGLES]
+    at -= first
+    for j in range(n):
+        f[angles + j] = pi_step(pi, pi, at + j * size, sample[j], dt, pi[bands + j], pi[bands + n + j])
+    f[meta[M_PI_STATE]:end] = pi[at:]
+
+
 def pi_spec(model):
     """The parameters of a :class:`~skcath.backbones.PrandtlIshlinskii` as plain data (a dict)."""
     return {"thresholds": np.array(model.thresholds), "weights": np.array(model.weights),
             "dead_band": float(model.dead_band), "asymmetry": np.array(model.asymmetry),
             "creep_gain": float(model.creep_gain), "creep_tau_s": float(model.creep_tau_s)}
-
-
-def run_from_rest(model, q, t):
-    """Effective angles (n, n_motors; deg) of ``q`` at times ``t`` from rest, and the final state.
-
-    The state is that of :func:`~skcath.backbones.pi_step` (``K + 2`` per
-    motor), after the last row: where the step continues the run.
-    """
-    state = model.initial_state(q[0])
-    up, down = model._bands()
-    theta = model.pack()
-    size = model.thresholds.size + 2
-    z = np.empty_like(q)
-    for r in range(len(q)):
-        dt = float(t[r] - t[r - 1]) if r > 0 else 0.0
-        for j in range(q.shape[1]):
-            z[r, j] = pi_step(theta, state, j * size, float(q[r, j]), dt, up[j], down[j])
-    return z, state
 
 
 def calibrate_pi(backbone, sweep):
@@ -196,7 +198,7 @@ def kept_angles(est, q, t):
     spec = getattr(est, "_pi_spec", None)
     if spec is None:
         return play_operator(q, getattr(est, "play_width_", 0.0))
-    z, state = run_from_rest(PrandtlIshlinskii(**spec), q, t)
+    z, state = PrandtlIshlinskii(**spec).forward(q, t, return_state=True)
     est._pi_start = state
     est._sweep_period = sweep_period(t, None)
     return z
