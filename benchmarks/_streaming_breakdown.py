@@ -11,8 +11,10 @@ the table gives the least and the median over the rounds (µs per step):
 - ``compiled call``: ``est._call(buf, sample, True)``, the call into the
   compiled step that ``step`` makes (its Python checks left out);
 - ``no-op call``: a compiled function that does nothing, called with the
-  same arguments as the compiled call: the cost of a call from Python into
-  compiled code with these arguments (numba's conversion of each);
+  same arguments as the compiled call and in the same way (numba's
+  dispatcher, or the entry point of the compiled function): the cost of a
+  call from Python into compiled code with these arguments (numba's
+  conversion of each);
 - ``step in compiled loop``: the compiled step called from a compiled loop
   over the samples: the step's own work, no call from Python;
 - ``backbone``, ``GRU gate product``, ``GRU candidate product``, ``gates,
@@ -90,7 +92,8 @@ def _head_loop(meta, f, w, w32, buf, n):
         _kernels._head(meta, f, w, w32, buf)
 
 
-def _noop(*args):
+def _noop(meta, a64, anet, w32, out, sample, check):
+    """Nothing, with the arguments of the compiled step (``skcath.online._jit.step_kernel``)."""
     return True
 
 
@@ -104,6 +107,8 @@ def _pieces(est, samples):
     tuples = [samples[k % len(samples)] for k in range(BATCH)]
     noop = _jit(_noop)
     noop(*bound, out, tuples[0], True)
+    if not hasattr(call.func, "overloads"):  # the step is called through its entry point
+        noop = noop.overloads[noop.signatures[0]].entry_point
     step = est.step
 
     def user():
