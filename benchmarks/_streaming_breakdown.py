@@ -39,7 +39,13 @@ from skcath._kernel import JIT_OPTIONS, load_numba
 from skcath.online import _kernels
 from skcath.online._jit import step_kernel
 from skcath.online._layout import (
-    GRU_CAND, GRU_GATES, M_ANGLES, M_HEADER, M_N_GRU, M_N_HEAD, M_W,
+    GRU_CAND,
+    GRU_GATES,
+    M_ANGLES,
+    M_HEADER,
+    M_N_GRU,
+    M_N_HEAD,
+    M_W,
 )
 
 BATCH = 200
@@ -69,17 +75,17 @@ def _backbone_loop(meta, f, theta, q, n):
 
 @_jit
 def _product_loop(meta, w, w32, buf, record, n):
-    v, x, x1, h, g, rz, r_pre, z_pre, hn, cand, tmp = _kernels.gru_vectors(meta, buf, M_HEADER)
+    vectors = _kernels.gru_vectors(meta, buf, M_HEADER)  # v, x, x1, h, g, .., cand, tmp
     for _ in range(n):
         if record == GRU_GATES:
-            _kernels.matvec(meta, M_HEADER + GRU_GATES, w, w32, v, g)
+            _kernels.matvec(meta, M_HEADER + GRU_GATES, w, w32, vectors[0], vectors[4])
         else:
-            _kernels.matvec(meta, M_HEADER + GRU_CAND, w, w32, x1, cand)
+            _kernels.matvec(meta, M_HEADER + GRU_CAND, w, w32, vectors[2], vectors[9])
 
 
 @_jit
 def _nonlinear_loop(meta, buf, n):
-    v, x, x1, h, g, rz, r_pre, z_pre, hn, cand, tmp = _kernels.gru_vectors(meta, buf, M_HEADER)
+    _, _, _, h, _, rz, r_pre, z_pre, hn, cand, tmp = _kernels.gru_vectors(meta, buf, M_HEADER)
     for _ in range(n):
         r, z = _kernels.gates(rz, r_pre, z_pre)
         a = _kernels.tanh_of_sum(cand, r, hn)

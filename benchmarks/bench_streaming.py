@@ -82,6 +82,13 @@ each p50 over the plain torch p50 of the same checkout. A checkout from
 before the tip kernels steps the torch loop's backbone with its own
 ``_backbone``.
 
+Where the time of one numba step goes (``--breakdown``): the whole step as
+a user calls it, the call into the compiled step, a compiled call that does
+nothing with the same arguments, the compiled step in a compiled loop, and
+its pieces (backbone, GRU products, nonlinearities, head), each timed
+in-process in batches of steps, least and median over the rounds, one table
+(``benchmarks/_streaming_breakdown.py``).
+
 Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_streaming.py            # 20,000 steps per variant
@@ -89,6 +96,7 @@ Usage (from the repository root)::
     .venv/bin/python benchmarks/bench_streaming.py --hysteresis play pi --no-cold-compile
     git worktree add /tmp/c262 c262cec
     .venv/bin/python benchmarks/bench_streaming.py --compare-to /tmp/c262 --steps 10000
+    .venv/bin/python benchmarks/bench_streaming.py --breakdown
 """
 
 from __future__ import annotations
