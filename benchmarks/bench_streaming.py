@@ -82,6 +82,13 @@ each p50 over the plain torch p50 of the same checkout. A checkout from
 before the tip kernels steps the torch loop's backbone with its own
 ``_backbone``.
 
+Where the time of one numba step goes (``--breakdown``): the whole step as
+a user calls it, the call into the compiled step, a compiled call that does
+nothing with the same arguments, the compiled step in a compiled loop, and
+its pieces (backbone, GRU products, nonlinearities, head), each timed
+in-process in batches of steps, least and median over the rounds, one table
+(``benchmarks/_streaming_breakdown.py``).
+
 Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_streaming.py            # 20,000 steps per variant
@@ -89,6 +96,7 @@ Usage (from the repository root)::
     .venv/bin/python benchmarks/bench_streaming.py --hysteresis play pi --no-cold-compile
     git worktree add /tmp/c262 c262cec
     .venv/bin/python benchmarks/bench_streaming.py --compare-to /tmp/c262 --steps 10000
+    .venv/bin/python benchmarks/bench_streaming.py --breakdown
 """
 
 from __future__ import annotations
@@ -498,6 +506,9 @@ def main(argv=None):
     parser.add_argument("--hysteresis", nargs="+", choices=["play", "pi"], default=[],
                         help="also time the GRU float64 and backbone-only estimators with "
                              "PDLBackbone(hysteresis=KIND), for each KIND given")
+    parser.add_argument("--breakdown", action="store_true",
+                        help="only time the pieces of the numba step in-process, one table "
+                             "(benchmarks/_streaming_breakdown.py)")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.compare_to:
@@ -506,6 +517,8 @@ def main(argv=None):
     threadpool_limits(1)
     if args.worker:
         return _worker()
+    if args.breakdown:
+        return _breakdown()
     has_numba = importlib.util.find_spec("numba") is not None
     prep = _prepare(["numba", "numpy"] if has_numba else ["numpy"], hysteresis=args.hysteresis)
     cold = None
@@ -538,6 +551,20 @@ def main(argv=None):
     if nrt:
         print("\nAllocations of numba's runtime per step (NUMBA_NRT_STATS=1), same loops: "
               + "; ".join(f"{name}: {v:.2f}" for name, v in nrt.items()))
+
+
+def _breakdown():
+    """``--breakdown``: the table of :mod:`_streaming_breakdown` for the numba rows."""
+    from _streaming_breakdown import breakdown
+
+    prep = _prepare(["numba"], full=False)
+    for line in machine_lines():
+        print(f"- {line}")
+    load_before = os.getloadavg()
+    breakdown({name.removeprefix("online").removesuffix(", numba").strip(" ,"): est
+               for name, est in prep["estimators"].items()}, prep["samples"])
+    print(f"\nload average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in load_before)}; "
+          f"after: {', '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
 # ---------------------------------------------------------------------------

@@ -209,6 +209,29 @@ def test_numba_reset_out_and_attributes(data, pipelines, run_nominal):
     assert_allclose(_stream(est.start(sweep), samples[:30]), first, rtol=0, atol=0)
 
 
+def test_numba_out_strided_or_made_read_only(data, pipelines):
+    """A strided ``out`` gets the tip in its own elements; one made read-only is refused."""
+    _, _, X_run = data
+    sweep, samples, _ = _split(X_run)
+    pipe = pipelines(PDLBackbone, "gru")
+    est = OnlineEstimator(pipe, engine="numba").start(sweep)
+    expected = _stream(OnlineEstimator(pipe, engine="numba").start(sweep), samples[:6])
+    wide = np.full((6, 2), -1.0)
+    strided = wide[:, 0][::2]  # shape (3,), every other element of a column
+    for k in range(3):
+        assert est.step(*samples[k], out=strided) is strided
+        assert_allclose(strided, expected[k], rtol=0, atol=0)
+    assert np.all(wide[:, 1] == -1.0) and np.all(wide[1::2, 0] == -1.0)
+    buf = np.empty(3)
+    est.step(*samples[3], out=buf)
+    assert_allclose(buf, expected[3], rtol=0, atol=0)
+    buf.flags.writeable = False
+    with pytest.raises(ValueError, match="out must be a writeable float64 array of shape"):
+        est.step(*samples[4], out=buf)
+    assert est.n_steps_ == 4
+    assert_allclose(est.step(*samples[4]), expected[4], rtol=0, atol=0)
+
+
 def test_numba_hold_policy_matches_numpy_engine(data, pipelines):
     _, _, X_run = data
     sweep, samples, _ = _split(X_run)

@@ -875,6 +875,9 @@ class OnlineEstimator(BaseEstimator):
                     f"{type(out).__name__} {getattr(out, 'shape', '')} "
                     f"{getattr(out, 'dtype', '')}."
                 )
+            if not out.flags.c_contiguous:  # the compiled step writes contiguous arrays
+                out[:] = self.step(*sample, t=t)
+                return out
             self._out = out
         if t is None:
             # the step checks the sample (finite, in range) and refuses a bad one untouched
