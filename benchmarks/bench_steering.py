@@ -232,7 +232,8 @@ class RigInverse:
     """The noise-free inverse of the true rig with a look-ahead: what a path asks of the motors.
 
     At every sample it reads the rig's state and the task's next
-    ``horizon`` targets, and picks the end point of a move of the motors
+    ``horizon`` targets (of a reach task, up to the current target's last
+    sample only: the next target is not known before it starts), and picks the end point of a move of the motors
     (within the rig's motor range) whose true tips over those samples are
     nearest the targets (RMS), the move going straight to the end point,
     at most ``rate_limit * dt`` per sample on every motor with
@@ -246,8 +247,11 @@ class RigInverse:
     about the least that the rate limit allows.
     """
 
-    def __init__(self, rig, targets, rate_limit=None, horizon=None):
-        self.rig, self.targets, self.rate_limit = rig, targets, rate_limit
+    def __init__(self, rig, task, rate_limit=None, horizon=None):
+        self.rig, self.targets, self.rate_limit = rig, task.target, rate_limit
+        bounds = [*task.changes[1:], len(task.target)] if task.changes else [len(task.target)]
+        starts = [*task.changes] if task.changes else [0]
+        self.last = np.concatenate([np.full(b - a, b - 1) for a, b in zip(starts, bounds)])
         self.horizon = horizon or (5 if rate_limit is None else 15)
 
     def start(self, sweep):
@@ -275,7 +279,7 @@ class RigInverse:
 
     def step(self, target, obs):
         limit = float(self.rig.motor_limit_deg)
-        ahead = self.targets[np.minimum(self.i + np.arange(self.horizon), len(self.targets) - 1)]
+        ahead = self.targets[np.minimum(self.i + np.arange(self.horizon), self.last[self.i])]
         half = limit if self.rate_limit is None else self.horizon * self.rate_limit * self.dt
         low = np.maximum(self.previous - half, -limit)
         high = np.minimum(self.previous + half, limit)
@@ -489,8 +493,8 @@ def run_setting(pipe, factories, mechanism, setting, args):
     rows, sweep = [], rig.reset()
     model_play = 2.0 * np.atleast_1d(OnlineEstimator(pipe).start(sweep).play_width_)
     for task_name, task in tasks_of(sweep, args.seed):
-        oracles = {ORACLES[0]: lambda task=task: RigInverse(rig, task.target),
-                   ORACLES[1]: lambda task=task: RigInverse(rig, task.target, RATE_LIMIT)}
+        oracles = {ORACLES[0]: lambda task=task: RigInverse(rig, task),
+                   ORACLES[1]: lambda task=task: RigInverse(rig, task, RATE_LIMIT)}
         for name, factory in {**factories, **{o: oracles[o] for o in args.oracles}}.items():
             timed = Timed(factory())
             result = run_task(rig, timed, task)
