@@ -493,6 +493,8 @@ def run_setting(pipe, factories, mechanism, setting, args):
     rows, sweep = [], rig.reset()
     model_play = 2.0 * np.atleast_1d(OnlineEstimator(pipe).start(sweep).play_width_)
     for task_name, task in tasks_of(sweep, args.seed):
+        if args.tasks and task_name not in args.tasks:
+            continue
         oracles = {ORACLES[0]: lambda task=task: RigInverse(rig, task),
                    ORACLES[1]: lambda task=task: RigInverse(rig, task, RATE_LIMIT)}
         for name, factory in {**factories, **{o: oracles[o] for o in args.oracles}}.items():
@@ -641,6 +643,9 @@ def parse_args():
                         help="seconds after each new reach target scored as the transit (default 2)")
     parser.add_argument("--controllers", nargs="+", default=None, metavar="NAME",
                         help="names of the controllers to run (default: all of them)")
+    parser.add_argument("--tasks", nargs="+", default=None, metavar="NAME",
+                        choices=("reach", "circle 2 mm/s", "circle 10 mm/s", "figure-eight 5 mm/s"),
+                        help="names of the tasks to run (default: all of them)")
     parser.add_argument("--diagnose", action="store_true",
                         help="also the tracker-closed loop without the rate limit")
     parser.add_argument("--rig-timing", type=int, default=0, metavar="N",
