@@ -86,7 +86,8 @@ and N ``step`` calls with the tracker off and on (wall and CPU time).
 
 Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]
 [--mechanisms ...] [--settings ...] [--residual {none,gru}] [--schedule
-{quick,full}] [--cache DIR] [--diagnose] [--rig-timing N] [--timing N]``.
+{quick,full}] [--cache DIR] [--controllers NAME ...] [--tasks NAME ...]
+[--diagnose] [--rig-timing N] [--timing N]``.
 """
 
 import argparse
