@@ -60,8 +60,9 @@ Controllers:
   noise-free inverse of the true rig with a look-ahead of 5 samples and no
   rate limit, whose command speeds are those each task asks of the motors,
   and ``true-rig inverse, rate limit``, the same at 60 deg/s with a
-  look-ahead of 15 samples, whose error is about the least the rate limit
-  allows (see ``RigInverse``).
+  look-ahead of 15 samples, a greedy search whose error on a reach task's
+  transit is about the least the rate limit allows (on a fast curved path
+  a controller may do better; see ``RigInverse``).
 
 After the tables the script prints what each controller asked of the
 motors (``print_feasibility``): the motor speed of its commands (median,
@@ -233,9 +234,10 @@ class RigInverse:
     """The noise-free inverse of the true rig with a look-ahead: what a path asks of the motors.
 
     At every sample it reads the rig's state and the task's next
-    ``horizon`` targets (of a reach task, up to the current target's last
-    sample only: the next target is not known before it starts), and picks the end point of a move of the motors
-    (within the rig's motor range) whose true tips over those samples are
+    ``horizon`` targets (5 without ``rate_limit``, 15 with it; of a reach
+    task, up to the current target's last sample only: the next target is
+    not known before it starts), and picks the end point of a move of the
+    motors (within the rig's motor range) whose true tips over those samples are
     nearest the targets (RMS), the move going straight to the end point,
     at most ``rate_limit * dt`` per sample on every motor with
     ``rate_limit`` (scaled as a whole, as the controllers' limit), at once
@@ -243,9 +245,12 @@ class RigInverse:
     nested grids (25 points a side over the reachable box, then three finer
     grids of 9 about the best point); among end points about as good, the
     nearest (1e-3 mm per degree). It knows the rig exactly, so no
-    controller that measures the rig does better: without ``rate_limit``
-    its motor speeds are those the path asks for; with it, its error is
-    about the least that the rate limit allows.
+    controller that measures the rig does much better: without
+    ``rate_limit`` its motor speeds are those the path asks for; with it,
+    its error on a straight move (a reach task's transit) is about the
+    least that the rate limit allows. The search is greedy (one straight
+    move per look-ahead), so on a fast curved path a controller may do
+    better.
     """
 
     def __init__(self, rig, task, rate_limit=None, horizon=None):
