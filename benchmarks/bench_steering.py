@@ -53,7 +53,23 @@ Controllers:
   script then also prints, for the feedback loops, their error split into
   the model's error that the correction does not cancel and the solve's
   miss of the wanted tip, with the model's error itself and its change over
-  the loop's delay (see ``feedback_terms``).
+  the loop's delay (see ``feedback_terms``);
+- only when named in ``--controllers`` (they take about a hundred times a
+  controller's time), two bounds that read the rig's own state instead of
+  measuring it: ``true-rig inverse``, the
+  noise-free inverse of the true rig with a look-ahead of 5 samples and no
+  rate limit, whose command speeds are those each task asks of the motors,
+  and ``true-rig inverse, rate limit``, the same at 60 deg/s with a
+  look-ahead of 15 samples, a greedy search whose error on a reach task's
+  transit is about the least the rate limit allows (on a fast curved path
+  a controller may do better; see ``RigInverse``).
+
+After the tables the script prints what each controller asked of the
+motors (``print_feasibility``): the motor speed of its commands (median,
+95th percentile, largest; deg/s), the share of samples at the rate limit,
+the number of its commands' reversals and the rig's play there (the motor
+travel after a reversal before the rig's unit play element moves again),
+and the model's play (twice its half-width identified on the sweep).
 
 All run with ``latency=1`` (the rig's timing) and, except the lookup and
 the last one, a rate limit of 60 deg/s. The time of one controller step is
@@ -71,10 +87,12 @@ and N ``step`` calls with the tracker off and on (wall and CPU time).
 
 Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]
 [--mechanisms ...] [--settings ...] [--residual {none,gru}] [--schedule
-{quick,full}] [--cache DIR] [--diagnose] [--rig-timing N] [--timing N]``.
+{quick,full}] [--cache DIR] [--controllers NAME ...] [--tasks NAME ...]
+[--diagnose] [--rig-timing N] [--timing N]``.
 """
 
 import argparse
+import copy
 import time
 import warnings
 from pathlib import Path
@@ -103,6 +121,8 @@ from skcath.residuals import NoResidual
 RATE_LIMIT = 60.0  # deg/s
 #: The controller that ``--diagnose`` adds.
 DIAGNOSTIC = "closed on the tracker, no rate limit"
+#: Bounds run only when named in ``--controllers``: the true rig's inverse (``RigInverse``), without and with the rate limit.
+ORACLES = ("true-rig inverse", "true-rig inverse, rate limit")
 #: Samples between a command and the record of the sample it moved (the rig's timing).
 RECORD_DELAY = 2
 
@@ -187,6 +207,95 @@ class SweepLookup:
 
     def step(self, target, obs):
         return self.q_[np.argmin(np.linalg.norm(self.tips_ - target, axis=1))]
+
+
+def _true_tips_ahead(rig, paths):
+    """Noise-free tips (mm) of the rig's next samples along candidate command paths, the rig unmoved.
+
+    ``paths`` of shape (h, n, n_motors): the commands of the next ``h``
+    samples of ``n`` candidates. Steps copies of the rig's dynamics
+    (transmission, wind-up, creep, lag) with every candidate at once and
+    evaluates the stateless rest of each sample as
+    :meth:`SimulatedCatheter.step` does; returns shape (h, n, 3).
+    """
+    while rig._k + len(paths) >= len(rig._noise["torque"]):
+        rig._extend()  # the same draws that the rig's own steps make
+    dyn, tips = copy.deepcopy(rig._dynamics), []
+    for j, commands in enumerate(paths, start=rig._k + 1):
+        u = np.clip(commands, -rig.motor_limit_deg, rig.motor_limit_deg) - rig._noise["offsets"][j]
+        v, phi = dyn.transmission.step(u)
+        windup = dyn.windup.step(dyn.layout.bending_inputs(u[None])[0])
+        v = v - rig.catheter_.slow_creep_gain * dyn.creep.step(v)
+        tips.append(rig._rows(np.full(len(u), j), dyn.lag.step(v), phi, windup, tracked=False)[1])
+    return np.array(tips)
+
+
+class RigInverse:
+    """The noise-free inverse of the true rig with a look-ahead: what a path asks of the motors.
+
+    At every sample it reads the rig's state and the task's next
+    ``horizon`` targets (5 without ``rate_limit``, 15 with it; of a reach
+    task, up to the current target's last sample only: the next target is
+    not known before it starts), and picks the end point of a move of the
+    motors (within the rig's motor range) whose true tips over those samples are
+    nearest the targets (RMS), the move going straight to the end point,
+    at most ``rate_limit * dt`` per sample on every motor with
+    ``rate_limit`` (scaled as a whole, as the controllers' limit), at once
+    without; it commands the move's first sample. The end point is found on
+    nested grids (25 points a side over the reachable box, then three finer
+    grids of 9 about the best point); among end points about as good, the
+    nearest (1e-3 mm per degree). It knows the rig exactly, so no
+    controller that measures the rig does much better: without
+    ``rate_limit`` its motor speeds are those the path asks for; with it,
+    its error on a straight move (a reach task's transit) is about the
+    least that the rate limit allows. The search is greedy (one straight
+    move per look-ahead), so on a fast curved path a controller may do
+    better.
+    """
+
+    def __init__(self, rig, task, rate_limit=None, horizon=None):
+        self.rig, self.targets, self.rate_limit = rig, task.target, rate_limit
+        bounds = [*task.changes[1:], len(task.target)] if task.changes else [len(task.target)]
+        starts = [*task.changes] if task.changes else [0]
+        self.last = np.concatenate([np.full(b - a, b - 1) for a, b in zip(starts, bounds)])
+        self.horizon = horizon or (5 if rate_limit is None else 15)
+
+    def start(self, sweep):
+        motors = [c for c in sweep.columns if c.startswith("q") and c[1:].isdigit()]
+        self.previous = sweep[motors].to_numpy(dtype=float)[-1]
+        self.dt = float(np.median(np.diff(sweep["t"].to_numpy(dtype=float))))
+        self.i = 0
+        return self
+
+    def _paths(self, ends):
+        """The commands (horizon, n, n_motors) of the moves from the previous command to ``ends``."""
+        move = ends - self.previous
+        if self.rate_limit is None:
+            return np.repeat((self.previous + move)[None], self.horizon, axis=0)
+        largest = np.maximum(np.abs(move).max(axis=1, keepdims=True), 1e-12)
+        j = np.arange(1, self.horizon + 1)[:, None, None]
+        return self.previous + move * np.minimum(1.0, j * self.rate_limit * self.dt / largest)
+
+    def _best(self, wanted, low, high, n):
+        axes = [np.linspace(a, b, n) for a, b in zip(low, high)]
+        ends = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
+        miss = np.linalg.norm(_true_tips_ahead(self.rig, self._paths(ends)) - wanted[:, None], axis=2)
+        cost = np.sqrt(np.mean(miss**2, axis=0)) + 1e-3 * np.abs(ends - self.previous).max(axis=1)
+        return ends[np.argmin(cost)], (high - low) / (n - 1)
+
+    def step(self, target, obs):
+        limit = float(self.rig.motor_limit_deg)
+        ahead = self.targets[np.minimum(self.i + np.arange(self.horizon), self.last[self.i])]
+        half = limit if self.rate_limit is None else self.horizon * self.rate_limit * self.dt
+        low = np.maximum(self.previous - half, -limit)
+        high = np.minimum(self.previous + half, limit)
+        best, spacing = self._best(ahead, low, high, 25)
+        for _ in range(3):
+            best, spacing = self._best(ahead, np.maximum(best - spacing, low),
+                                       np.minimum(best + spacing, high), 9)
+        self.previous = self._paths(best[None])[0, 0]
+        self.i += 1
+        return self.previous
 
 
 class Timed:
@@ -322,6 +431,57 @@ def feedback_terms(result, timed):
     }
 
 
+def command_speeds(result, sweep):
+    """Per sample, the motor speed (deg/s) of its command: the largest change of a motor from the previous command."""
+    motors = [c for c in sweep.columns if c.startswith("q") and c[1:].isdigit()]
+    previous = np.vstack([sweep[motors].to_numpy(dtype=float)[-1:], result.command[:-1]])
+    return np.abs(result.command - previous).max(axis=1) * result.task.rate_hz
+
+
+def play_at_reversals(rig, commands, mask):
+    """The rig's play where a motor's command turns back within ``mask``: (reversals, median crossing, deg).
+
+    The crossing is the motor travel after a reversal before the rig's unit
+    play element moves again, ``(1 + asym) w(u)`` at the command (its
+    elements are 0.3 to 8 times as wide; see
+    :mod:`skcath.datasets._hysteresis`); NaN without a play mechanism or
+    without reversals. A move below 0.01 deg does not count as motion.
+    """
+    if rig.mechanism != "play":
+        return 0, np.nan
+    p = rig._dynamics.transmission.params
+    step = np.diff(commands, axis=0)
+    moving = np.abs(step) > 1e-2
+    crossings = []
+    for j in range(commands.shape[1]):
+        idx = np.flatnonzero(moving[:, j])
+        turns = idx[1:][np.sign(step[idx[1:], j]) != np.sign(step[idx[:-1], j])] + 1
+        for k in turns[mask[turns]]:
+            load = np.abs(commands[k])
+            width = p["w0"][0, j] + p["growth"][0, j] * (load[j] + p["cross_load"][0, j] * (load.sum() - load[j]))
+            crossings.append((1.0 + p["asym"][0, j]) * width)
+    return len(crossings), float(np.median(crossings)) if crossings else np.nan
+
+
+def print_feasibility(rows):
+    """What each task asks of the motors: command speeds, samples at the rate limit, the play at reversals."""
+    step = RATE_LIMIT / 10.0
+    print(f"\nfeasibility: the motor speed of each controller's commands (deg/s over the view's samples: "
+          f"median, p95, max), the share of samples at the rate limit ({RATE_LIMIT:g} deg/s, {step:g} deg "
+          f"per sample at 10 Hz); the commands' reversals and the rig's play crossing there (deg, unit "
+          f"element; elements 0.3 to 8 times it); the model's play (2 x half-width, deg)")
+    print("| mechanism | setting | task | controller | RMS mm | speed median | p95 | max | at limit "
+          "| reversals | rig's play crossing | model's play |")
+    for r in rows:
+        v = r["speed"]
+        at_limit = np.mean(v >= 0.999 * RATE_LIMIT) if len(v) else np.nan
+        n_rev, crossing = r["play"]
+        play = " / ".join(f"{w:.1f}" for w in r["model_play"])
+        print(f"| {r['mechanism']} | {r['setting']} | {r['task']} | {r['controller']} | {r['rms']:.2f} "
+              f"| {np.median(v):.0f} | {np.percentile(v, 95):.0f} | {v.max():.0f} | {at_limit:.2f} "
+              f"| {n_rev} | {crossing:.1f} | {play} |")
+
+
 def estimator_seconds(pipe, timed):
     """Mean time (s) of the estimator's step on the observations a timed controller was given."""
     est = OnlineEstimator(pipe).start(timed.sweep)
@@ -336,19 +496,28 @@ def run_setting(pipe, factories, mechanism, setting, args):
     """Rows of the table for one mechanism in one setting of the held-out unit."""
     rig = SimulatedCatheter(catheter=args.catheter, setting=setting, mechanism=mechanism, tracker=True,
                             random_state=args.seed)
-    rows = []
-    for task_name, task in tasks_of(rig.reset(), args.seed):
-        for name, factory in factories.items():
+    rows, sweep = [], rig.reset()
+    model_play = 2.0 * np.atleast_1d(OnlineEstimator(pipe).start(sweep).play_width_)
+    for task_name, task in tasks_of(sweep, args.seed):
+        if args.tasks and task_name not in args.tasks:
+            continue
+        oracles = {ORACLES[0]: lambda task=task: RigInverse(rig, task),
+                   ORACLES[1]: lambda task=task: RigInverse(rig, task, RATE_LIMIT)}
+        for name, factory in {**factories, **{o: oracles[o] for o in args.oracles}}.items():
             timed = Timed(factory())
             result = run_task(rig, timed, task)
             step_us = 1e6 * float(np.median(timed.seconds))
             model_step = name.startswith(("skcath", "closed"))
             est_us = 1e6 * estimator_seconds(pipe, timed) if model_step else np.nan
             terms = feedback_terms(result, timed) if args.diagnose else None
+            speed = command_speeds(result, timed.sweep)
             for scores, mask in zip(score_run(result, timed.observations, args.transit_s),
                                     phases(task, args.transit_s).values()):
                 if terms is not None:
                     scores["terms"] = {key: _rms(value[mask]) for key, value in terms.items()}
+                scores["speed"] = speed[mask]
+                scores["play"] = play_at_reversals(rig, result.command, mask)
+                scores["model_play"] = model_play
                 rows.append({"mechanism": mechanism, "setting": setting, "task": task_name + scores.pop("view"),
                              "controller": name, **scores, "step_us": step_us, "est_us": est_us,
                              "clipped": result.n_clipped})
@@ -480,6 +649,9 @@ def parse_args():
                         help="seconds after each new reach target scored as the transit (default 2)")
     parser.add_argument("--controllers", nargs="+", default=None, metavar="NAME",
                         help="names of the controllers to run (default: all of them)")
+    parser.add_argument("--tasks", nargs="+", default=None, metavar="NAME",
+                        choices=("reach", "circle 2 mm/s", "circle 10 mm/s", "figure-eight 5 mm/s"),
+                        help="names of the tasks to run (default: all of them)")
     parser.add_argument("--diagnose", action="store_true",
                         help="also the tracker-closed loop without the rate limit")
     parser.add_argument("--rig-timing", type=int, default=0, metavar="N",
@@ -524,16 +696,19 @@ def main():
                   f"{floors[mechanism, setting]:.2f} mm", flush=True)
         print("| " + " | ".join(HEADER) + " |")
         factories = registry(pipe, args.diagnose)
-        unknown = sorted(set(args.controllers or ()) - set(factories))
+        unknown = sorted(set(args.controllers or ()) - set(factories) - set(ORACLES))
         if unknown:
-            raise SystemExit(f"--controllers: unknown {unknown}; expected names among {list(factories)}")
+            raise SystemExit(f"--controllers: unknown {unknown}; expected names among "
+                             f"{[*factories, *ORACLES]}")
         wanted = set(args.controllers or factories) | ({DIAGNOSTIC} if args.diagnose else set())
         factories = {name: f for name, f in factories.items() if name in wanted}
+        args.oracles = [name for name in ORACLES if name in wanted]
         for setting in settings:
             rows += run_setting(pipe, factories, mechanism, setting, args)
     summary(rows, floors)
     if args.diagnose:
         print_terms(rows)
+    print_feasibility(rows)
 
 
 if __name__ == "__main__":
