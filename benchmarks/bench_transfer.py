@@ -353,7 +353,8 @@ def add_ratios(table, identifications, ks, k_max):
             )
     for ident in identifications:
         if ident.hysteresis is not None:
-            table.loc[f"ratio {ident.backbone} / PDL"] = table.loc[ident.backbone] / table.loc["PDL"]
+            if "PDL" in table.index:
+                table.loc[f"ratio {ident.backbone} / PDL"] = table.loc[ident.backbone] / table.loc["PDL"]
             if "PCC" in table.index:
                 table.loc[f"ratio {pcc_name(ident)} / PCC"] = table.loc[pcc_name(ident)] / table.loc["PCC"]
     return table.dropna(how="all")
@@ -497,10 +498,11 @@ def main(argv=None):
         widths += [] if play is None else [play]
         mechanisms.update(units)
     runs = pd.concat(runs, ignore_index=True)
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    runs.to_csv(args.output_dir / "transfer_runs.csv", index=False)  # first: the tables cannot lose the runs
     table = summarise(runs, args.tuning_catheter, args.identifications)
     by_catheter = per_catheter(runs, mechanisms, args.identifications)
     clock.part("all", "total", start)
-    args.output_dir.mkdir(parents=True, exist_ok=True)
     epochs = args.schedule.pretrain_params["max_epochs"]
     learning = ("backbones alone" if args.backbones_only else
                 f"schedule {args.schedule.name} ({epochs} pretraining epochs), seeds {args.seeds}")
@@ -522,7 +524,6 @@ def main(argv=None):
     print(timings.to_markdown(index=False, floatfmt=".1f"))
     table.to_csv(args.output_dir / "transfer.csv", index_label="row")
     by_catheter.to_csv(args.output_dir / "transfer_catheters.csv", index_label="row")
-    runs.to_csv(args.output_dir / "transfer_runs.csv", index=False)
     timings.to_csv(args.output_dir / "timings.csv", index=False)
     print(f"\nwritten: {args.output_dir}/transfer.csv, transfer_catheters.csv, transfer_runs.csv, "
           + ("play_widths.csv, " if len(widths) else "") + "timings.csv")
