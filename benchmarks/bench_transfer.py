@@ -54,7 +54,7 @@ identification too (``PCC``, ``PCC+adapt``, ``PCC+pi``). ``--held-out`` tests
 some catheters only, ``--ks`` some numbers of training catheters only,
 ``--schedule full`` the protocol's full schedule (``--max-epochs`` caps its
 pretraining epochs; the heading then says so), ``--backbones-only`` the
-backbones alone.
+backbones alone (``--no-pdl``: PCC alone).
 
 Schedule: ``QUICK`` (hidden size 64, windows every 200 steps, 4 pretraining
 epochs at learning rate 1e-2, 3 fine-tuning epochs at 3e-3, four groups of
@@ -191,12 +191,13 @@ def backbone_inputs(X, args, name, clock):
     inputs, pcc, widths = {}, {}, None
     for ident in args.identifications:
         start = time.perf_counter()
-        if ident.hysteresis == "play":
+        if args.pdl and ident.hysteresis == "play":
             inputs[ident.backbone], widths = adapted_input(X, args.n_jobs)
-        else:
+        elif args.pdl:
             params = {} if ident.hysteresis is None else {"hysteresis": ident.hysteresis}
             inputs[ident.backbone] = learner_input(X, n_jobs=args.n_jobs, **params)
-        clock.part(name, f"calibrating {ident.backbone}", start)
+        if args.pdl:
+            clock.part(name, f"calibrating {ident.backbone}", start)
         if not args.pcc:
             continue
         start = time.perf_counter()
@@ -352,7 +353,8 @@ def add_ratios(table, identifications, ks, k_max):
             )
     for ident in identifications:
         if ident.hysteresis is not None:
-            table.loc[f"ratio {ident.backbone} / PDL"] = table.loc[ident.backbone] / table.loc["PDL"]
+            if "PDL" in table.index:
+                table.loc[f"ratio {ident.backbone} / PDL"] = table.loc[ident.backbone] / table.loc["PDL"]
             if "PCC" in table.index:
                 table.loc[f"ratio {pcc_name(ident)} / PCC"] = table.loc[pcc_name(ident)] / table.loc["PCC"]
     return table.dropna(how="all")
@@ -433,6 +435,8 @@ def parse_args(argv=None):
                         help="skip the within-catheter references (fine-tuning the k = n - 1 models)")
     parser.add_argument("--no-pcc", dest="pcc", action="store_false", help="skip the PCC backbones")
     parser.add_argument("--backbones-only", action="store_true", help="the backbones alone, no learning")
+    parser.add_argument("--no-pdl", dest="pdl", action="store_false",
+                        help="with --backbones-only: skip the PDL backbones (their rows and ratios are left out)")
     parser.add_argument("--subsets", choices=("cyclic", "all"), default="all",
                         help="training catheters with k < n - 1: the k that follow the held-out one "
                              "in cyclic order, or every set of k (default: all)")
@@ -449,6 +453,8 @@ def parse_args(argv=None):
     parser.add_argument("--output-dir", type=Path, default=Path("skcath_results/transfer"),
                         help="folder of the CSV files (default: skcath_results/transfer)")
     args = parser.parse_args(argv)
+    if not args.pdl and not (args.backbones_only and args.pcc):
+        parser.error("--no-pdl: only with --backbones-only and without --no-pcc (the learners need PDL)")
     missing = [h for h in args.hysteresis if h != "none" and not has_hysteresis(h)]
     for h in missing:
         print(f"skipping --hysteresis {h}: this skcath's backbones have no hysteresis={h!r} "
@@ -492,10 +498,11 @@ def main(argv=None):
         widths += [] if play is None else [play]
         mechanisms.update(units)
     runs = pd.concat(runs, ignore_index=True)
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    runs.to_csv(args.output_dir / "transfer_runs.csv", index=False)  # first: the tables cannot lose the runs
     table = summarise(runs, args.tuning_catheter, args.identifications)
     by_catheter = per_catheter(runs, mechanisms, args.identifications)
     clock.part("all", "total", start)
-    args.output_dir.mkdir(parents=True, exist_ok=True)
     epochs = args.schedule.pretrain_params["max_epochs"]
     learning = ("backbones alone" if args.backbones_only else
                 f"schedule {args.schedule.name} ({epochs} pretraining epochs), seeds {args.seeds}")
@@ -517,7 +524,6 @@ def main(argv=None):
     print(timings.to_markdown(index=False, floatfmt=".1f"))
     table.to_csv(args.output_dir / "transfer.csv", index_label="row")
     by_catheter.to_csv(args.output_dir / "transfer_catheters.csv", index_label="row")
-    runs.to_csv(args.output_dir / "transfer_runs.csv", index=False)
     timings.to_csv(args.output_dir / "timings.csv", index=False)
     print(f"\nwritten: {args.output_dir}/transfer.csv, transfer_catheters.csv, transfer_runs.csv, "
           + ("play_widths.csv, " if len(widths) else "") + "timings.csv")
