@@ -15,11 +15,14 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "skcath"
 BENCHMARKS = ROOT / "benchmarks"
 
-#: Scripts of ``benchmarks/`` that diagnose the simulator with its own truth
-#: (offsets, transmission output, wind-up of every sample), which no public
-#: function returns, and the private modules each of them may read.
-SIMULATOR_DIAGNOSES = {
+#: Scripts of ``benchmarks/`` that diagnose what no public function returns,
+#: and the private modules each of them may read: the simulator's own truth
+#: (offsets, transmission output, wind-up of every sample), and the pieces of
+#: the compiled streaming step timed one by one.
+DIAGNOSES = {
     "diagnose_backbone_error.py": {"skcath.datasets._benchmark", "skcath.datasets._simulator"},
+    "_streaming_breakdown.py": {"skcath._kernel", "skcath.online", "skcath.online._jit",
+                                "skcath.online._layout"},
 }
 
 #: Longest function body allowed in the package, in lines of code (blank,
@@ -77,9 +80,9 @@ def test_no_long_function_in_the_package():
 
 
 def _private_imports(path):
-    """Imports of private skcath modules or names in one script (those of a simulator diagnosis left out)."""
+    """Imports of private skcath modules or names in one script (those of a diagnosis left out)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    allowed = SIMULATOR_DIAGNOSES.get(path.name, set())
+    allowed = DIAGNOSES.get(path.name, set())
     found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module in allowed:
@@ -102,8 +105,8 @@ def test_benchmarks_import_only_public_names(path):
     assert _private_imports(path) == []
 
 
-def test_simulator_diagnoses_exist_and_read_only_their_modules(tmp_path):
-    for name in SIMULATOR_DIAGNOSES:
+def test_diagnoses_exist_and_read_only_their_modules(tmp_path):
+    for name in DIAGNOSES:
         assert (BENCHMARKS / name).is_file(), name
     # another private module in a diagnosis is still found
     path = tmp_path / "diagnose_backbone_error.py"
@@ -117,7 +120,7 @@ def test_public_names_of_benchmark_imports_are_exported():
 
     missing = []
     for path in sorted(BENCHMARKS.glob("*.py")):
-        allowed = SIMULATOR_DIAGNOSES.get(path.name, set())
+        allowed = DIAGNOSES.get(path.name, set())
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.ImportFrom) and node.module in allowed:
                 continue
