@@ -92,7 +92,6 @@ Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_steering.py [--quick]
 """
 
 import argparse
-import copy
 import time
 import warnings
 from pathlib import Path
@@ -209,27 +208,6 @@ class SweepLookup:
         return self.q_[np.argmin(np.linalg.norm(self.tips_ - target, axis=1))]
 
 
-def _true_tips_ahead(rig, paths):
-    """Noise-free tips (mm) of the rig's next samples along candidate command paths, the rig unmoved.
-
-    ``paths`` of shape (h, n, n_motors): the commands of the next ``h``
-    samples of ``n`` candidates. Steps copies of the rig's dynamics
-    (transmission, wind-up, creep, lag) with every candidate at once and
-    evaluates the stateless rest of each sample as
-    :meth:`SimulatedCatheter.step` does; returns shape (h, n, 3).
-    """
-    while rig._k + len(paths) >= len(rig._noise["torque"]):
-        rig._extend()  # the same draws that the rig's own steps make
-    dyn, tips = copy.deepcopy(rig._dynamics), []
-    for j, commands in enumerate(paths, start=rig._k + 1):
-        u = np.clip(commands, -rig.motor_limit_deg, rig.motor_limit_deg) - rig._noise["offsets"][j]
-        v, phi = dyn.transmission.step(u)
-        windup = dyn.windup.step(dyn.layout.bending_inputs(u[None])[0])
-        v = v - rig.catheter_.slow_creep_gain * dyn.creep.step(v)
-        tips.append(rig._rows(np.full(len(u), j), dyn.lag.step(v), phi, windup, tracked=False)[1])
-    return np.array(tips)
-
-
 class RigInverse:
     """The noise-free inverse of the true rig with a look-ahead: what a path asks of the motors.
 
@@ -279,7 +257,7 @@ class RigInverse:
     def _best(self, wanted, low, high, n):
         axes = [np.linspace(a, b, n) for a, b in zip(low, high)]
         ends = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
-        miss = np.linalg.norm(_true_tips_ahead(self.rig, self._paths(ends)) - wanted[:, None], axis=2)
+        miss = np.linalg.norm(self.rig.tips_ahead(self._paths(ends)) - wanted[:, None], axis=2)
         cost = np.sqrt(np.mean(miss**2, axis=0)) + 1e-3 * np.abs(ends - self.previous).max(axis=1)
         return ends[np.argmin(cost)], (high - low) / (n - 1)
 
@@ -441,25 +419,20 @@ def command_speeds(result, sweep):
 def play_at_reversals(rig, commands, mask):
     """The rig's play where a motor's command turns back within ``mask``: (reversals, median crossing, deg).
 
-    The crossing is the motor travel after a reversal before the rig's unit
-    play element moves again, ``(1 + asym) w(u)`` at the command (its
-    elements are 0.3 to 8 times as wide; see
-    :mod:`skcath.datasets._hysteresis`); NaN without a play mechanism or
-    without reversals. A move below 0.01 deg does not count as motion.
+    The crossing is :meth:`SimulatedCatheter.play_crossing` at the command,
+    the motor travel after a reversal before the rig's unit play element
+    moves again; NaN without a play mechanism or without reversals. A move
+    below 0.01 deg does not count as motion.
     """
     if rig.mechanism != "play":
         return 0, np.nan
-    p = rig._dynamics.transmission.params
     step = np.diff(commands, axis=0)
     moving = np.abs(step) > 1e-2
     crossings = []
     for j in range(commands.shape[1]):
         idx = np.flatnonzero(moving[:, j])
         turns = idx[1:][np.sign(step[idx[1:], j]) != np.sign(step[idx[:-1], j])] + 1
-        for k in turns[mask[turns]]:
-            load = np.abs(commands[k])
-            width = p["w0"][0, j] + p["growth"][0, j] * (load[j] + p["cross_load"][0, j] * (load.sum() - load[j]))
-            crossings.append((1.0 + p["asym"][0, j]) * width)
+        crossings.extend(rig.play_crossing(commands[k])[j] for k in turns[mask[turns]])
     return len(crossings), float(np.median(crossings)) if crossings else np.nan
 
 

@@ -1,5 +1,6 @@
 """Tests of the simulated catheter driven one sample at a time (skcath.datasets.SimulatedCatheter)."""
 
+import copy
 import dataclasses
 import warnings
 
@@ -203,3 +204,59 @@ def test_a_lost_tip_sensor_gives_a_nan_tip_in_the_record_only():
         tips.append(rig.tip_)
     assert 0.15 < np.isnan(records).mean() < 0.45
     assert np.all(np.isfinite(tips))
+
+
+@pytest.mark.parametrize("mechanism, n_motors", [("play", 2), ("bouc_wen", 1), ("dahl_creep", 3)])
+def test_tips_ahead_are_the_tips_the_steps_along_each_path_show(mechanism, n_motors):
+    rig = SimulatedCatheter(catheter=2, setting="S05", mechanism=mechanism, n_motors=n_motors)
+    rig.reset()
+    rng = np.random.default_rng(0)
+    for command in rng.uniform(-20, 20, size=(5, n_motors)):
+        rig.step(command)
+    start = rig.sweep_[[f"q{j + 1}" for j in range(n_motors)]].to_numpy()[-1]
+    # three candidates: two smooth moves and one that crosses the motor limit (clipped as step clips)
+    ends = np.array([np.full(n_motors, 25.0), np.full(n_motors, -30.0), np.full(n_motors, 90.0)])
+    paths = start + (ends - start) * np.linspace(0.1, 1.0, 8)[:, None, None]
+    state, before = copy.deepcopy(rig), copy.deepcopy(rig)
+    tips = rig.tips_ahead(paths)
+    assert tips.shape == (8, 3, 3)
+    # the rig did not move
+    assert rig.n_steps_ == before.n_steps_
+    assert rig.step(np.zeros(n_motors)) == before.step(np.zeros(n_motors))
+    assert_array_equal(rig.step(np.ones(n_motors))["q1"], before.step(np.ones(n_motors))["q1"])
+    assert_array_equal(rig.tip_, before.tip_)
+    for c in range(3):
+        walked = copy.deepcopy(state)
+        seen = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MotorLimitWarning)
+            for command in [*paths[:, c], paths[-1, c]]:
+                walked.step(command)
+                seen.append(walked.tip_)
+        np.testing.assert_allclose(tips[:, c], np.array(seen[1:]), atol=1e-9)
+    # different paths reach different tips
+    assert np.linalg.norm(tips[-1, 0] - tips[-1, 1]) > 1.0
+
+
+def test_tips_ahead_and_play_crossing_check_their_input():
+    rig = SimulatedCatheter(catheter=2, setting="S05")
+    with pytest.raises(NotFittedError, match="reset"):
+        rig.tips_ahead(np.zeros((1, 1, 2)))
+    rig.reset()
+    with pytest.raises(ValueError, match=r"paths must have shape \(n_ahead, n_candidates, 2\)"):
+        rig.tips_ahead(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="paths must be finite"):
+        rig.tips_ahead(np.full((1, 1, 2), np.nan))
+    with pytest.raises(ValueError, match="command must hold one angle per motor"):
+        rig.play_crossing([1.0, 2.0, 3.0])
+
+
+def test_play_crossing_grows_with_the_load_and_is_nan_without_a_play():
+    rig = SimulatedCatheter(catheter=2, setting="S12")
+    rig.reset()
+    rest, loaded = rig.play_crossing([0.0, 0.0]), rig.play_crossing([40.0, 0.0])
+    assert np.all(rest > 0)
+    assert loaded[0] > rest[0] and loaded[1] > rest[1]  # its own load, and the other motor's (cross load)
+    other = SimulatedCatheter(catheter=2, setting="S12", mechanism="bouc_wen")
+    other.reset()
+    assert np.all(np.isnan(other.play_crossing([0.0, 0.0])))

@@ -20,12 +20,13 @@ motors: arrays have shape ``(n_steps, n_runs, n_motors)``.
 
 import numpy as np
 
-__all__ = ["MECHANISMS", "WindupStepper", "simulate_transmission", "torsional_windup", "transmission_stepper"]
+__all__ = ["MECHANISMS", "WindupStepper", "play_width", "simulate_transmission", "torsional_windup", "transmission_stepper"]
 
 MECHANISMS = ("play", "bouc_wen", "dahl_creep")
 
 
-def _width(u, params):
+def play_width(u, params):
+    """Load-dependent width ``w(u)`` (deg) of the play at motor inputs ``u`` (deg), shape (n, n_motors)."""
     load = np.abs(u)
     return params["w0"] + params["growth"] * (load + params["cross_load"] * (load @ params["others"]))
 
@@ -57,7 +58,7 @@ class _Play:
 
     def step(self, uk):
         r = self.params["asym"]
-        w = PLAY_ELEMENTS[:, None, None] * _width(uk, self.params)
+        w = PLAY_ELEMENTS[:, None, None] * play_width(uk, self.params)
         self.z = z = np.clip(self.z, uk - w, uk + r * w)
         phi = ((2.0 * (uk - z) + (r - 1.0) * w) / ((1.0 + r) * w)).mean(axis=0)
         return z.mean(axis=0), phi
@@ -89,7 +90,7 @@ class _BoucWen:
         delta = (1.0 - r) / (1.0 + r)
         du = uk - self.u_prev
         self.u_prev = uk
-        w = PLAY_ELEMENTS[:, None, None] * _width(uk, self.params) * (0.5 + 0.5 * r)
+        w = PLAY_ELEMENTS[:, None, None] * play_width(uk, self.params) * (0.5 + 0.5 * r)
         adu = np.abs(du)
         h = self.h
         self.h = h = (h + du + delta * adu - (kappa / w) * du * np.abs(h)) / (1.0 + ((1.0 - kappa) / w) * adu)
@@ -122,7 +123,7 @@ class _DahlCreep:
         p = self.params
         du = uk - self.u_prev
         self.u_prev = uk
-        w = PLAY_ELEMENTS[:, None, None] * _width(uk, p)
+        w = PLAY_ELEMENTS[:, None, None] * play_width(uk, p)
         w = w * (1.0 + p["rate_gain"] * np.tanh(np.abs(du) / (self.dt * p["rate_speed"])))
         self.h = h = (self.h + du) / (1.0 + np.abs(du) / w)
         lag = h.mean(axis=0)

@@ -18,6 +18,7 @@ another code path than that of many rows, whose rounding differs in the
 last bit.
 """
 
+import copy
 import dataclasses
 import warnings
 from numbers import Integral, Real
@@ -32,7 +33,7 @@ from .. import _format as fmt
 from ..exceptions import MotorLimitWarning
 from ._benchmark import _benchmark_field, benchmark_catheter, benchmark_specs
 from ._catheter import UNIT_SPREAD, Catheter, ShaftSetting
-from ._hysteresis import MECHANISMS, WindupStepper, transmission_stepper
+from ._hysteresis import MECHANISMS, WindupStepper, play_width, transmission_stepper
 from ._simulator import (
     MAX_RATE_HZ,
     RATE_HZ,
@@ -94,14 +95,24 @@ class _Dynamics:
         self.lag = _Lag(cat.tip_lag, rate_hz)
         self.transmission = None
 
-    def step(self, u):
+    def step_rows(self, u):
+        """Lagged effective inputs, friction utilisations and wind-ups of the rows of ``u``.
+
+        ``u`` of shape (n, n_motors): n alternative motor inputs (deg) of the
+        next sample, each stepped from the same state (the state then holds
+        n rows); returns three arrays of n rows.
+        """
         if self.transmission is None:
             params = _transmission_params([self.spec], [self.cfg])
             self.transmission = transmission_stepper(u, 1.0 / self.rate_hz, params, self.mechanism)
         v, phi = self.transmission.step(u)
         windup = self.windup.step(self.layout.bending_inputs(u[None])[0])
         v = v - self.spec.catheter.slow_creep_gain * self.creep.step(v)
-        return self.lag.step(v)[0], phi[0], windup[0]
+        return self.lag.step(v), phi, windup
+
+    def step(self, u):
+        lagged, phi, windup = self.step_rows(u)
+        return lagged[0], phi[0], windup[0]
 
 
 def _check_command(command, n_motors):
@@ -412,6 +423,78 @@ class SimulatedCatheter(BaseEstimator):
             self.n_clipped_ += 1
         return clipped
 
+    def _check_reset(self, method):
+        if not hasattr(self, "_pending"):
+            raise NotFittedError(f"This SimulatedCatheter has no run yet; call reset() before {method}().")
+
+    def tips_ahead(self, paths):
+        """Noise-free tips of the next samples along candidate command paths; the rig does not move.
+
+        The truth a controller cannot measure, for bounds of what steering
+        can reach: each candidate path is stepped through copies of the run's
+        transmission, wind-up, tendon creep and section lag from their
+        present state, with the run's own offsets and gains of those samples
+        (the draws its :meth:`step` calls will make), as :meth:`step` would
+        (commands clipped to the motor range, without warning). The first
+        command of a path is the one the next :meth:`step` would take.
+
+        Parameters
+        ----------
+        paths : array-like of shape (n_ahead, n_candidates, n_motors)
+            Motor commands (deg) of the next ``n_ahead`` samples of each
+            candidate path.
+
+        Returns
+        -------
+        tips : ndarray of shape (n_ahead, n_candidates, 3)
+            The noise-free tip (mm, base frame) of each of those samples:
+            ``tips[i, c]`` is the tip :attr:`tip_` shows after the ``i + 2``-th
+            :meth:`step` along path ``c`` (the record of a commanded sample
+            comes back one step later), equal to it within rounding (about
+            1e-13 mm: the candidates are evaluated together).
+        """
+        self._check_reset("tips_ahead")
+        paths = np.asarray(paths, dtype=float)
+        if paths.ndim != 3 or paths.shape[2] != self.n_motors or 0 in paths.shape[:2]:
+            raise ValueError(
+                f"paths must have shape (n_ahead, n_candidates, {self.n_motors}) (commands, deg); "
+                f"got shape {paths.shape}."
+            )
+        if not np.all(np.isfinite(paths)):
+            raise ValueError("paths must be finite motor angles in degrees; they contain NaN or inf.")
+        while self._k + len(paths) >= len(self._noise["torque"]):
+            self._extend()  # the same draws that the rig's own steps make
+        limit = float(self.motor_limit_deg)
+        dynamics, tips = copy.deepcopy(self._dynamics), []
+        for j, commands in enumerate(paths, start=self._k + 1):
+            u = np.clip(commands, -limit, limit) - self._noise["offsets"][j]
+            tips.append(self._rows(np.full(len(u), j), *dynamics.step_rows(u), tracked=False)[1])
+        return np.array(tips)
+
+    def play_crossing(self, command):
+        """The motor travel (deg) after a reversal at ``command`` before the unit play element moves.
+
+        ``(1 + asym) w(u)`` per motor, with ``w`` the load-dependent width of
+        the run's play (:mod:`skcath.datasets._hysteresis`) at the motor input
+        of ``command``; the play's elements are 0.3 to 8 times as wide. NaN
+        for the other mechanisms.
+
+        Parameters
+        ----------
+        command : array-like of shape (n_motors,)
+            Motor angles (deg).
+
+        Returns
+        -------
+        crossing : ndarray of shape (n_motors,)
+        """
+        self._check_reset("play_crossing")
+        c = _check_command(command, self.n_motors)
+        if self.mechanism != "play":
+            return np.full(self.n_motors, np.nan)
+        params = self._dynamics.transmission.params
+        return ((1.0 + params["asym"]) * play_width(c[None], params))[0]
+
     def step(self, command):
         """Set the motor angles of the next sample; the record of the current one.
 
@@ -436,8 +519,7 @@ class SimulatedCatheter(BaseEstimator):
         sklearn.exceptions.NotFittedError
             Before :meth:`reset`.
         """
-        if not hasattr(self, "_pending"):
-            raise NotFittedError("This SimulatedCatheter has no run yet; call reset() before step().")
+        self._check_reset("step")
         c = self._clip(_check_command(command, self.n_motors))
         k, rate, (q_prev, q_k) = self._k, float(self.rate_hz), self._q
         drive, y_true, y = self._pending

@@ -865,6 +865,7 @@ class OnlineEstimator(BaseEstimator):
             sample = real_sample(sample, self._channels())  # raises: a wrong count
         if t is not None or self._ticking:
             t = self._check_time(t)
+        given = None  # a strided out, filled from a contiguous one at the end
         if out is None:
             out = np.empty(3)
         elif out is not self._out or not out.flags.writeable:  # _out: the last out that passed
@@ -875,10 +876,10 @@ class OnlineEstimator(BaseEstimator):
                     f"{type(out).__name__} {getattr(out, 'shape', '')} "
                     f"{getattr(out, 'dtype', '')}."
                 )
-            if not out.flags.c_contiguous:  # the compiled step writes contiguous arrays
-                out[:] = self.step(*sample, t=t)
-                return out
-            self._out = out
+            if out.flags.c_contiguous:
+                self._out = out
+            else:  # the compiled step writes contiguous arrays
+                given, out = out, np.empty(3)
         if t is None:
             # the step checks the sample (finite, in range) and refuses a bad one untouched
             if not self._call(out, sample, True):
@@ -893,6 +894,9 @@ class OnlineEstimator(BaseEstimator):
         self.n_steps_ += 1
         if self.detector is not None:
             self.shaft_changed_ = bool(self.detector_.step(*sample))
+        if given is not None:
+            given[:] = out
+            return given
         return out
 
     # ------------------------------------------------------------ the model's rate
