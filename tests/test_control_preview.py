@@ -138,6 +138,22 @@ def test_preview_zero_commands_as_without_it(setup, Controller):
     assert Controller(pipe).preview == 0
 
 
+def test_a_held_target_is_commanded_as_without_preview(setup):
+    """Reach targets, each held and previewed as held (its successor unknown): the commands of no preview."""
+    pipe, sweep, targets = setup
+    held = np.repeat(targets[[10, 60, 30]], 12, axis=0)
+    got = []
+    for preview in (0, 6):
+        controller = FeedbackController(pipe, rate_limit=60.0, preview=preview, engine="numpy").start(sweep)
+        plant, commands = Plant(pipe, sweep), []
+        for i, target in enumerate(held):
+            end = (i // 12 + 1) * 12  # the present target's samples only
+            commands.append(controller.step(target, plant.obs, upcoming=held[i + 1:min(i + 1 + preview, end)]))
+            plant.step(commands[-1])
+        got.append(np.array(commands))
+    np.testing.assert_array_equal(got[0], got[1])
+
+
 @pytest.mark.parametrize("Controller", [FeedforwardController, FeedbackController])
 def test_preview_keeps_the_limits_and_tracks_the_reversals_better(setup, Controller):
     """On the model's own tips along reversing motors: within the rate and motor limits, and closer at the reversals."""
@@ -207,3 +223,25 @@ def test_run_task_passes_the_known_targets_ahead():
         np.testing.assert_array_equal(upcoming, reach.target[i + 1:min(i + 4, (i // 4 + 1) * 4)])
     with pytest.raises(ValueError, match="preview must be"):
         run_task(rig, recorder, task, preview=-1)
+
+
+def test_plan_through_the_pi_leaves_the_stream_alone_and_gives_the_wanted_angles():
+    """The PI's plan steps a copy of the forward state: each planned command's forward step is its wanted angle."""
+    from skcath.backbones import PrandtlIshlinskii
+    from skcath.control._hysteresis import PIInverse
+
+    rng = np.random.default_rng(3)
+    model = PrandtlIshlinskii([0.0, 0.5, 1.4, 4.0], [0.4, 0.0, 0.35, 0.25], dead_band=1.2,
+                              asymmetry=[0.2, -0.3], creep_gain=0.2, creep_tau_s=2.0)
+    q = np.cumsum(rng.normal(0.0, 3.0, (40, 2)), axis=0)
+    v, state = model.forward(q, np.arange(40) * 0.1, return_state=True)
+    inverse = PIInverse(model, state, np.array([0.1]))
+    before = state.copy()
+    z_ahead = v[-1] + np.cumsum(rng.normal(0.0, 2.0, (12, 2)), axis=0)  # reversals included
+    u = plan(inverse, z_ahead, v[-1], q[-1], lambda x: x)
+    assert inverse.state is state and np.array_equal(state, before)  # the stream's state, untouched
+    forward, reached = state.copy(), []
+    for command in u:
+        forward, effective = model.step(forward, command, 0.1)
+        reached.append(effective)
+    np.testing.assert_allclose(reached, z_ahead, atol=1e-9)

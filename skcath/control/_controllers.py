@@ -235,24 +235,27 @@ class _Controller(BaseEstimator):
         ahead = check_upcoming(upcoming, self.preview)
         return ahead if len(ahead) else None
 
-    def _angles_ahead(self, ahead, correction):
+    def _angles_ahead(self, target, ahead, correction):
         """Wanted effective angles (deg) of the samples ahead, each target solved once as it comes in view.
 
         ``ahead`` (k, 3): the targets of the next samples (mm); the model is
         solved for ``target - correction`` from the solution of the sample
-        before, with this sample's model state. A solution is kept while the
-        same target stays in view (the correction it was solved with too).
+        before, with this sample's model state, and the solution is kept
+        while the same target stays in view. A target ahead equal to this
+        sample's ``target`` (a target held, as a reach target is) takes this
+        sample's solution.
         """
-        kept = self._ahead[1:]
+        kept, now = self._ahead[1:], target.tolist()
         out = np.empty((len(ahead), len(self.command_)))
         z = self._z_solution
-        for i, target in enumerate(ahead.tolist()):
-            if i < len(kept) and kept[i][0] == target:
-                z = kept[i][1]
+        for i, key in enumerate(ahead.tolist()):
+            if i < len(kept) and kept[i][0] == key:
+                z = self._z_solution if key == now else kept[i][1]
+                kept[i] = (key, z)
             else:
                 del kept[i:]
-                z = self._nearest(np.array(target) - correction, z)[0]
-                kept.append((target, z))
+                z = self._z_solution if key == now else self._nearest(np.array(key) - correction, z)[0]
+                kept.append((key, z))
             out[i] = z
         self._ahead = kept
         return out
@@ -271,7 +274,7 @@ class _Controller(BaseEstimator):
                      self.limits_.project)
             step = math.inf if self.rate_limit is None else self.rate_limit * self.dt_
             q_led = self.limits_.project(lead(u, step))
-            limited = limited or q_led.tolist() != q_limited.tolist()
+            limited = limited or q_led.tolist() != q_limited.tolist()  # its aim is not the command's
             q_limited = q_led
         if self.rate_limit is not None:
             q_limited, slowed = rate_limited(q_limited, self.command_, self.rate_limit * self.dt_)
@@ -429,7 +432,7 @@ class FeedforwardController(_Controller):
             self._observe(obs)
             try:
                 z, _, _ = self._aim(target)
-                command = self._issue(z, None if ahead is None else self._angles_ahead(ahead, 0.0))
+                command = self._issue(z, None if ahead is None else self._angles_ahead(target, ahead, 0.0))
             finally:
                 self.model_.end()
         self._warn_if_unreachable()
@@ -560,13 +563,13 @@ class FeedbackController(_Controller):
             z, aimed, _ = self._aim(target - self.correction_)
             self._z_wanted = z
             if ahead is not None:
-                z_ahead = self._angles_ahead(ahead, self.correction_)
+                z_ahead = self._angles_ahead(target, ahead, self.correction_)
         else:
             z_ff, aimed, J = self._aim(target)
             step = self.gain * damped_solve(J, aimed - measured, self.damping)
             self._z_wanted = self.limits_.project(self._z_wanted + step)
             if ahead is not None:  # moved by the feedback's offset from this sample's feedforward solution
-                z_ahead = self._angles_ahead(ahead, 0.0) + (self._z_wanted - z_ff)
+                z_ahead = self._angles_ahead(target, ahead, 0.0) + (self._z_wanted - z_ff)
         command = self._issue(self._z_wanted, z_ahead)
         self._aims.append((aimed, self._limited))
         return command
