@@ -10,7 +10,9 @@ A controller is any object with ``start(sweep)``, called once with the
 sweep's rows, and ``step(target, obs)``, which returns the motor angles
 (deg, shape ``(n_motors,)``) for the sample the target is given for; ``obs``
 is the rig's latest record (a dict: ``t``, ``q1 .. qN``, ``tau1 .. tauN``,
-and ``x``, ``y``, ``z`` when the tracker is on). A controller that keeps its
+and ``x``, ``y``, ``z`` when the tracker is on); ``run_task(...,
+preview=k)`` calls ``step(target, obs, upcoming=...)`` with the targets of
+the next samples that are known. A controller that keeps its
 tip estimate in ``estimate_`` (mm, base frame) after each step has it
 returned with the path.
 """
