@@ -49,6 +49,11 @@ Controllers:
 - ``skcath closed loop (estimate)``: ``FeedbackController(close_on="estimate")``;
 - ``closed on the tracker``: ``FeedbackController(close_on="tracker")``,
   the bound that a tracker in the loop gives;
+- ``skcath feedforward, preview``, ``skcath closed loop (estimate), preview``
+  and ``closed on the tracker, preview``: the same with ``preview=10``
+  (1 s at 10 Hz), given the task's next targets by
+  ``run_task(..., preview=10)`` (of a reach task, the present target's
+  only: its successor is not known before it starts);
 - with ``--diagnose``, ``closed on the tracker, no rate limit``; the
   script then also prints, for the feedback loops, their error split into
   the model's error that the correction does not cancel and the solve's
@@ -81,7 +86,9 @@ the same engine.
 ``--timing N`` instead times N steps (CPU time, ``time.process_time``) of
 each controller and of the estimator alone on the same samples, on the
 numba engine and the fast path (observations as tuples), for a pipeline of
-PDL with the play and ``NoResidual`` (see ``time_steps``).
+PDL with the play and ``NoResidual`` (see ``time_steps``); then the
+feedback on the numpy engine, and with ``preview=10`` (numpy, the next 10
+targets given), each also as a ratio to the feedback's compiled step.
 ``--rig-timing N`` times the rig itself first: ``SimulatedCatheter.reset``
 and N ``step`` calls with the tracker off and on (wall and CPU time).
 
@@ -118,6 +125,10 @@ from skcath.protocol import ADAPTED_BACKBONE, ADAPTED_METHOD, LEARNER_COLUMNS, g
 from skcath.residuals import NoResidual
 
 RATE_LIMIT = 60.0  # deg/s
+#: Samples of path preview of the controllers named ``..., preview`` (``run_task(..., preview=PREVIEW)``).
+PREVIEW = 10
+#: The suffix of the names of the controllers given the task's next targets.
+PREVIEW_SUFFIX = ", preview"
 #: The controller that ``--diagnose`` adds.
 DIAGNOSTIC = "closed on the tracker, no rate limit"
 #: Bounds run only when named in ``--controllers``: the true rig's inverse (``RigInverse``), without and with the rate limit.
@@ -288,9 +299,12 @@ class Timed:
         self.sweep = sweep
         return self
 
-    def step(self, target, obs):
+    def step(self, target, obs, upcoming=None):
         t0 = time.perf_counter()
-        command = self.controller.step(target, obs)
+        if upcoming is None:
+            command = self.controller.step(target, obs)
+        else:
+            command = self.controller.step(target, obs, upcoming=upcoming)
         self.seconds.append(time.perf_counter() - t0)
         self.observations.append(obs)
         self.estimate_ = getattr(self.controller, "estimate_", None)
@@ -309,6 +323,11 @@ def registry(pipe, diagnose=False):
         "skcath feedforward": lambda: FeedforwardController(pipe, **common),
         "skcath closed loop (estimate)": lambda: FeedbackController(pipe, **common),
         "closed on the tracker": lambda: FeedbackController(pipe, close_on="tracker", **common),
+        "skcath feedforward" + PREVIEW_SUFFIX: lambda: FeedforwardController(pipe, preview=PREVIEW, **common),
+        "skcath closed loop (estimate)" + PREVIEW_SUFFIX: lambda: FeedbackController(
+            pipe, preview=PREVIEW, **common),
+        "closed on the tracker" + PREVIEW_SUFFIX: lambda: FeedbackController(
+            pipe, close_on="tracker", preview=PREVIEW, **common),
     }
     if diagnose:
         out[DIAGNOSTIC] = lambda: FeedbackController(
@@ -478,7 +497,7 @@ def run_setting(pipe, factories, mechanism, setting, args):
                    ORACLES[1]: lambda task=task: RigInverse(rig, task, RATE_LIMIT)}
         for name, factory in {**factories, **{o: oracles[o] for o in args.oracles}}.items():
             timed = Timed(factory())
-            result = run_task(rig, timed, task)
+            result = run_task(rig, timed, task, preview=PREVIEW if name.endswith(PREVIEW_SUFFIX) else 0)
             step_us = 1e6 * float(np.median(timed.seconds))
             model_step = name.startswith(("skcath", "closed"))
             est_us = 1e6 * estimator_seconds(pipe, timed) if model_step else np.nan
@@ -526,20 +545,22 @@ def summary(rows, floors):
     """Per mechanism, setting and task view: the ratios the goals name, both errors over the same samples."""
     print("\nclosed loop (estimate) RMS / PCC open-loop RMS (goal <= 0.5), / the estimator's RMS on the "
           "same samples (goal <= 1.1); tracker-closed RMS; the model's floor on the unit's benchmark runs")
-    print("| mechanism | setting | task | closed (est.) mm | / PCC | est. mm | / est. | feedforward / PCC "
-          "| closed (tracker) mm | floor mm |")
+    print("| mechanism | setting | task | preview | closed (est.) mm | / PCC | est. mm | / est. "
+          "| feedforward / PCC | closed (tracker) mm | floor mm |")
     keys = dict.fromkeys((r["mechanism"], r["setting"], r["task"]) for r in rows)
     for mech, setting, task in keys:
         sel = {r["controller"]: r for r in rows
                if (r["mechanism"], r["setting"], r["task"]) == (mech, setting, task)}
-        cl, pcc = sel.get("skcath closed loop (estimate)"), sel.get("PCC inverse, open loop")
-        ff, tr = sel.get("skcath feedforward"), sel.get("closed on the tracker")
-        if cl is None or pcc is None:
-            continue
-        print(f"| {mech:10s} | {setting:4s} | {task:19s} | {cl['rms']:5.2f} | {cl['rms'] / pcc['rms']:5.2f} "
-              f"| {cl['est']:5.2f} | {cl['rms'] / cl['est']:5.2f} "
-              f"| {ff['rms'] / pcc['rms'] if ff else np.nan:5.2f} | {tr['rms'] if tr else np.nan:5.2f} "
-              f"| {floors[mech, setting]:5.2f} |")
+        pcc = sel.get("PCC inverse, open loop")
+        for suffix, preview in (("", "no"), (PREVIEW_SUFFIX, str(PREVIEW))):
+            cl = sel.get("skcath closed loop (estimate)" + suffix)
+            ff, tr = sel.get("skcath feedforward" + suffix), sel.get("closed on the tracker" + suffix)
+            if cl is None or pcc is None:
+                continue
+            print(f"| {mech:10s} | {setting:4s} | {task:19s} | {preview:>2s} | {cl['rms']:5.2f} "
+                  f"| {cl['rms'] / pcc['rms']:5.2f} | {cl['est']:5.2f} | {cl['rms'] / cl['est']:5.2f} "
+                  f"| {ff['rms'] / pcc['rms'] if ff else np.nan:5.2f} | {tr['rms'] if tr else np.nan:5.2f} "
+                  f"| {floors[mech, setting]:5.2f} |")
 
 
 def time_rig(n_steps, catheter, setting):
@@ -583,9 +604,13 @@ def time_steps(n_steps, seed):
     samples = [tuple(r[c] for c in est.channels_) for r in records]
     targets = [est.step(*x).copy() for x in samples]
     out = {}
+    targets = np.array(targets)
     for name, controller in (("estimator step", None),
                              ("FeedforwardController.step", FeedforwardController(pipe, engine="numba")),
-                             ("FeedbackController.step", FeedbackController(pipe, engine="numba"))):
+                             ("FeedbackController.step", FeedbackController(pipe, engine="numba")),
+                             ("FeedbackController.step, numpy", FeedbackController(pipe, engine="numpy")),
+                             (f"FeedbackController.step, preview={PREVIEW}", FeedbackController(
+                                 pipe, preview=PREVIEW))):
         if controller is None:
             est.reset()
             cpu = time.process_time()
@@ -594,9 +619,10 @@ def time_steps(n_steps, seed):
         else:
             controller.start(sweep)
             controller.step(targets[0], samples[0])  # the compiled solve loaded outside the timing
+            ahead = [targets[i + 1:i + 1 + PREVIEW] if controller.preview else None for i in range(n_steps)]
             cpu = time.process_time()
-            for target, x in zip(targets, samples):
-                controller.step(target, x)
+            for target, x, upcoming in zip(targets, samples, ahead):
+                controller.step(target, x, upcoming=upcoming)
         out[name] = 1e6 * (time.process_time() - cpu) / n_steps
     return out
 
@@ -646,7 +672,8 @@ def main():
     if args.timing:
         times = time_steps(args.timing, args.seed)
         for name, us in times.items():
-            print(f"| {name:28s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x |")
+            print(f"| {name:38s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x "
+                  f"| {us / times['FeedbackController.step']:5.1f} x |")
         return
     mechanisms = args.mechanisms or (("play",) if args.quick else ("play", "bouc_wen", "dahl_creep"))
     settings = args.settings or (("S05",) if args.quick else ("S05", "S12"))

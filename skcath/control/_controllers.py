@@ -20,6 +20,7 @@ from ._hysteresis import hysteresis_inverse
 from ._limits import MotorLimits, UnreachableTargetWarning, check_target, rate_limited, read_obs
 from ._model import ModelInverse, damped_solve
 from ._modes import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
+from ._preview import check_upcoming, lead, plan
 
 __all__ = ["FeedbackController", "FeedforwardController"]
 
@@ -78,6 +79,7 @@ class _Controller(BaseEstimator):
         "damping": [Interval(Real, 0, None, closed="left")],
         "latency": [Interval(Integral, 0, None, closed="left")],
         "engine": [StrOptions({"auto", "numba", "numpy"})],
+        "preview": [Interval(Integral, 0, None, closed="left")],
     }
 
     def start(self, sweep):
@@ -94,8 +96,14 @@ class _Controller(BaseEstimator):
             Ready for :meth:`step`; the first command moves from the last sweep sample.
         """
         self._validate_params()
+        engine = self.engine
+        if self.preview > 0:
+            if engine == "numba":
+                raise ValueError(f"preview={self.preview} runs on the numpy engine only; pass engine='numpy' "
+                                 "or 'auto' (which takes numpy when preview > 0), or preview=0 for numba.")
+            engine = "numpy"
         X = check_sweep(sweep).X
-        est = OnlineEstimator(self.pipeline, engine=self.engine).start(X)
+        est = OnlineEstimator(self.pipeline, engine=engine).start(X)
         n = len(est.q_neutral_)
         q = X[list(est.channels_[:n])].to_numpy(dtype=float)
         low, high = _limits_box(self.motor_limits, q)
@@ -114,6 +122,7 @@ class _Controller(BaseEstimator):
         self.n_unreachable_ = 0
         self._unreachable = None  # (target, tip, miss) of the step under way, warned of at its end
         self._limited = False
+        self._ahead = []  # (target, effective angles) of the samples after this one, solved as they came in view
         self._issued = deque([self.command_.copy()] * self.latency, maxlen=max(self.latency, 1))
         self._reset_feedback()
         self._compiled = CompiledStep(self, self._mode(), GRID_MARGIN_MM) if est.engine_ == "numba" else None
@@ -186,14 +195,14 @@ class _Controller(BaseEstimator):
         return self.model_.solve(target, z0, self._torques, max_iter=self.max_iter, tol_deg=SOLVE_TOL_DEG,
                                  damping=self.damping)
 
-    def _aim(self, target):
-        """Solve the model for ``target``: effective angles, the nearest model tip and its Jacobian.
+    def _nearest(self, target, z0):
+        """Solve the model for ``target`` from ``z0``: effective angles, the nearest model tip and its Jacobian.
 
-        From the previous solution; again from the nearest backbone tip of the
-        seed grid when one of those lies closer to the target than the tip
-        found (a local minimum, e.g. in a dead zone of the backbone).
+        Again from the nearest backbone tip of the seed grid when one of
+        those lies closer to the target than the tip found (a local minimum,
+        e.g. in a dead zone of the backbone).
         """
-        z, tip, J = self._solve(target, self._z_solution)
+        z, tip, J = self._solve(target, z0)
         d = target - tip
         miss2 = float(d @ d)
         if miss2 > GRID_MARGIN_MM:  # else no grid tip can be closer by the margin
@@ -203,6 +212,11 @@ class _Controller(BaseEstimator):
                 z2, tip2, J2 = self._solve(target, self._grid_z[best])
                 if np.sum((target - tip2) ** 2) < miss2:
                     z, tip, J = z2, tip2, J2
+        return z, tip, J
+
+    def _aim(self, target):
+        """Solve the model for ``target`` from the previous solution (:meth:`_nearest`); the step's aim."""
+        z, tip, J = self._nearest(target, self._z_solution)
         self._z_solution = z
         d = target - tip
         miss = math.sqrt(float(d @ d))
@@ -213,11 +227,55 @@ class _Controller(BaseEstimator):
         self.aimed_ = tip
         return z, tip, J
 
-    def _issue(self, z_wanted):
-        """The command (deg) for the wanted effective angles: inverted hysteresis, motor and rate limits."""
+    def _upcoming(self, upcoming):
+        """The checked ``upcoming`` targets within the preview (k, 3), or None: no preview this step."""
+        if upcoming is None or self.preview == 0:
+            self._ahead = []
+            return None
+        ahead = check_upcoming(upcoming, self.preview)
+        return ahead if len(ahead) else None
+
+    def _angles_ahead(self, target, ahead, correction):
+        """Wanted effective angles (deg) of the samples ahead, each target solved once as it comes in view.
+
+        ``ahead`` (k, 3): the targets of the next samples (mm); the model is
+        solved for ``target - correction`` from the solution of the sample
+        before, with this sample's model state, and the solution is kept
+        while the same target stays in view. A target ahead equal to this
+        sample's ``target`` (a target held, as a reach target is) takes this
+        sample's solution.
+        """
+        kept, now = self._ahead[1:], target.tolist()
+        out = np.empty((len(ahead), len(self.command_)))
+        z = self._z_solution
+        for i, key in enumerate(ahead.tolist()):
+            if i < len(kept) and kept[i][0] == key:
+                z = self._z_solution if key == now else kept[i][1]
+                kept[i] = (key, z)
+            else:
+                del kept[i:]
+                z = self._z_solution if key == now else self._nearest(np.array(key) - correction, z)[0]
+                kept.append((key, z))
+            out[i] = z
+        self._ahead = kept
+        return out
+
+    def _issue(self, z_wanted, z_ahead=None):
+        """The command (deg) for the wanted effective angles: inverted hysteresis, preview, motor and rate limits.
+
+        ``z_ahead`` (k, n_motors): the wanted effective angles of the next
+        samples (deg), or None: without them the command is the inverse's.
+        """
         q = self.inverse_.command(self.limits_.project(z_wanted), self._effective_state(), self.command_)
         q_limited = self.limits_.project(q)
         limited = q_limited.tolist() != q.tolist()
+        if z_ahead is not None:
+            u = plan(self.inverse_, np.vstack([z_wanted, z_ahead]), self._effective_state(), self.command_,
+                     self.limits_.project)
+            step = math.inf if self.rate_limit is None else self.rate_limit * self.dt_
+            q_led = self.limits_.project(lead(u, step))
+            limited = limited or q_led.tolist() != q_limited.tolist()  # its aim is not the command's
+            q_limited = q_led
         if self.rate_limit is not None:
             q_limited, slowed = rate_limited(q_limited, self.command_, self.rate_limit * self.dt_)
             limited = limited or slowed
@@ -257,6 +315,17 @@ _COMMON_PARAMETERS = """
         :class:`~skcath.datasets.SimulatedCatheter`, whose record of a sample
         is complete only once the next command is known; 0 where the
         observation is the sample that the previous command produced.
+    preview : int, default=0
+        Samples of path preview: at most this many of the targets ahead
+        that :meth:`step` is given (``upcoming``) are solved for (each once,
+        as it comes in view, from the solution of the one before) and
+        turned into the commands they want through the hysteresis inverse;
+        where those jump (a reversal, which crosses the play) faster than
+        ``rate_limit`` allows, the crossing starts early, so that it is half
+        made at the reversal. Commands stay within the motor and rate
+        limits. 0: no preview, ``upcoming`` is not read. The preview runs on
+        the numpy engine: ``engine="auto"`` takes it when ``preview > 0``,
+        ``engine="numba"`` with ``preview > 0`` raises a ``ValueError``.
     engine : {"auto", "numba", "numpy"}, default="auto"
         Engine of the model's step (:class:`~skcath.online.OnlineEstimator`).
 """
@@ -290,6 +359,12 @@ _STEP_DOC = """Motor command for the next sample.
             tracker's ``x, y, z`` (mm) when closing on the tracker. A sequence
             holds the channels in the order of ``estimator_.channels_``
             (then ``x, y, z``): the fast path.
+        upcoming : array-like of shape (k, 3), default=None
+            Targets of the next ``k`` samples (mm, base frame; finite), the
+            first the target of the sample after this one: a planned path.
+            Read with ``preview > 0`` (its first ``preview`` rows); None or
+            ``k = 0``: nothing ahead is known (e.g. a reach target whose
+            successor is not known yet).
 
         Returns
         -------
@@ -336,7 +411,7 @@ class FeedforwardController(_Controller):
     """
 
     def __init__(self, pipeline, *, motor_limits=None, rate_limit=None, reach_tol_mm=2.0,
-                 max_iter=8, damping=0.05, latency=1, engine="auto"):
+                 max_iter=8, damping=0.05, latency=1, preview=0, engine="auto"):
         self.pipeline = pipeline
         self.motor_limits = motor_limits
         self.rate_limit = rate_limit
@@ -344,18 +419,20 @@ class FeedforwardController(_Controller):
         self.max_iter = max_iter
         self.damping = damping
         self.latency = latency
+        self.preview = preview
         self.engine = engine
 
-    def step(self, target, obs):
+    def step(self, target, obs, upcoming=None):
         self._check_started()
         target = check_target(target)
+        ahead = self._upcoming(upcoming)
         if self._compiled is not None:
             command = self._step_compiled(target, obs, False)
         else:
             self._observe(obs)
             try:
                 z, _, _ = self._aim(target)
-                command = self._issue(z)
+                command = self._issue(z, None if ahead is None else self._angles_ahead(target, ahead, 0.0))
             finally:
                 self.model_.end()
         self._warn_if_unreachable()
@@ -427,7 +504,7 @@ class FeedbackController(_Controller):
 
     def __init__(self, pipeline, *, close_on="estimate", feedforward=True, gain=0.2, dead_band=1.0,
                  motor_limits=None, rate_limit=None, reach_tol_mm=2.0, max_iter=8, damping=0.05,
-                 latency=1, engine="auto"):
+                 latency=1, preview=0, engine="auto"):
         self.pipeline = pipeline
         self.close_on = close_on
         self.feedforward = feedforward
@@ -439,6 +516,7 @@ class FeedbackController(_Controller):
         self.max_iter = max_iter
         self.damping = damping
         self.latency = latency
+        self.preview = preview
         self.engine = engine
 
     def _dead_band(self):
@@ -453,16 +531,17 @@ class FeedbackController(_Controller):
     def _mode(self):
         return MODE_INTERNAL_MODEL if self.feedforward else MODE_RESOLVED_RATE
 
-    def step(self, target, obs):
+    def step(self, target, obs, upcoming=None):
         self._check_started()
         target = check_target(target)
+        ahead = self._upcoming(upcoming)
         if self._compiled is not None:
             command = self._step_compiled(target, obs, self.close_on == "tracker")
         else:
             aimed_before = self._aims[0]  # the aim of the command the observation shows
             estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")
             try:
-                command = self._feedback(target, aimed_before, estimate if tip is None else tip)
+                command = self._feedback(target, aimed_before, estimate if tip is None else tip, ahead)
             finally:
                 self.model_.end()
         self._warn_if_unreachable()
@@ -470,18 +549,27 @@ class FeedbackController(_Controller):
 
     step.__doc__ = _STEP_DOC
 
-    def _feedback(self, target, aimed_before, measured):
-        """The command from the model's solution and the error of the aim the observation shows."""
+    def _feedback(self, target, aimed_before, measured, ahead=None):
+        """The command from the model's solution and the error of the aim the observation shows.
+
+        ``ahead``: the targets of the next samples (k, 3) (mm) or None; their
+        wanted angles are corrected as this sample's are.
+        """
         predicted, limited = aimed_before
+        z_ahead = None
         if self.feedforward:
             if predicted is not None and not limited:
                 self.correction_ = self.correction_ + self.gain * (measured - predicted - self.correction_)
             z, aimed, _ = self._aim(target - self.correction_)
             self._z_wanted = z
+            if ahead is not None:
+                z_ahead = self._angles_ahead(target, ahead, self.correction_)
         else:
             z_ff, aimed, J = self._aim(target)
             step = self.gain * damped_solve(J, aimed - measured, self.damping)
             self._z_wanted = self.limits_.project(self._z_wanted + step)
-        command = self._issue(self._z_wanted)
+            if ahead is not None:  # moved by the feedback's offset from this sample's feedforward solution
+                z_ahead = self._angles_ahead(target, ahead, 0.0) + (self._z_wanted - z_ff)
+        command = self._issue(self._z_wanted, z_ahead)
         self._aims.append((aimed, self._limited))
         return command

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._kernel import kernel
-from ..backbones._pi import pi_inverse_step
+from ..backbones._pi import pi_inverse_step, pi_step
 
 __all__ = ["INVERSES", "IdentityInverse", "PIInverse", "PlayInverse", "hysteresis_inverse", "pi_command",
            "pi_link"]
@@ -48,6 +48,10 @@ class IdentityInverse:
         q : ndarray of shape (n_motors,)
         """
         return np.array(z_wanted, dtype=float)
+
+    def follow(self, z_state, q):
+        """Effective angles (deg) after command ``q`` from ``z_state``; for :func:`~skcath.control._preview.plan`."""
+        return np.array(q, dtype=float)
 
 
 class PlayInverse:
@@ -100,6 +104,10 @@ class PlayInverse:
             else:
                 q.append(min(max(qj, zj - w), zj + w))
         return np.array(q)
+
+    def follow(self, z_state, q):
+        """Played angles (deg) after command ``q`` from ``z_state``; as :meth:`IdentityInverse.follow`."""
+        return np.minimum(np.maximum(z_state, q - self.width), q + self.width)
 
 
 def pi_link(model):
@@ -188,6 +196,23 @@ class PIInverse:
         self.dead_band = float(dead_band)
         self.theta, self.up, self.down = model.pack_inverse()
         self.link = pi_link(model)
+        self._forward_theta = model.pack()
+        self._forward_bands = model._bands()
+
+    def begin_plan(self):
+        """Start a plan of commands ahead: the forward state copied, the stream's own left as it is."""
+        self._saved, self.state = self.state, np.array(self.state, dtype=float)
+
+    def end_plan(self):
+        """Read the stream's forward state again, as before :meth:`begin_plan`."""
+        self.state = self._saved
+
+    def follow(self, z_state, q):
+        """Effective angles (deg) after command ``q``, the forward state (a plan's copy) stepped in place."""
+        size, dt = self.model.thresholds.size + 2, float(self.dt[0])
+        up, down = self._forward_bands
+        return np.array([pi_step(self._forward_theta, self.state, j * size, float(qj), dt, up[j], down[j])
+                         for j, qj in enumerate(np.asarray(q, dtype=float).tolist())])
 
     def command(self, z_wanted, z_state, q_previous):
         """Motor command (deg) that brings the effective angles to ``z_wanted``; as :meth:`IdentityInverse.command`."""

@@ -10,7 +10,9 @@ A controller is any object with ``start(sweep)``, called once with the
 sweep's rows, and ``step(target, obs)``, which returns the motor angles
 (deg, shape ``(n_motors,)``) for the sample the target is given for; ``obs``
 is the rig's latest record (a dict: ``t``, ``q1 .. qN``, ``tau1 .. tauN``,
-and ``x``, ``y``, ``z`` when the tracker is on). A controller that keeps its
+and ``x``, ``y``, ``z`` when the tracker is on); ``run_task(...,
+preview=k)`` calls ``step(target, obs, upcoming=...)`` with the targets of
+the next samples that are known. A controller that keeps its
 tip estimate in ``estimate_`` (mm, base frame) after each step has it
 returned with the path.
 """
@@ -324,12 +326,25 @@ def standard_tasks(sweep, *, speed_mm_s=5.0, random_state=None):
     return tasks
 
 
-def run_task(rig, controller, task):
+def _known_until(task):
+    """Per sample, the end (exclusive) of the targets known then: a reach target's successor is not."""
+    n = len(task.target)
+    ends = np.full(n, n)
+    bounds = [*task.changes[1:], n] if task.changes else [n]
+    starts = list(task.changes) if task.changes else [0]
+    for a, b in zip(starts, bounds):
+        ends[a:b] = b
+    return ends
+
+
+def run_task(rig, controller, task, *, preview=0):
     """Drive a rig with a controller along a task.
 
     Resets the rig (its sweep), calls ``controller.start(sweep)``, holds the
     motors at their last sweep angles for one sample, then, for each target,
-    ``command = controller.step(target, obs)`` and ``obs = rig.step(command)``.
+    ``command = controller.step(target, obs)`` and ``obs = rig.step(command)``;
+    with ``preview > 0``, ``controller.step(target, obs, upcoming=...)``
+    with the targets of the next samples that are known.
     The rig's timing (:class:`~skcath.datasets.SimulatedCatheter`) makes a
     command the motor angle one sample after the record ``obs`` it answers
     comes back; the target given with a command is the tip wanted at the
@@ -345,6 +360,12 @@ def run_task(rig, controller, task):
         With ``start(sweep)`` and ``step(target, obs)``.
     task : Task
         At the rig's sample rate.
+    preview : int, default=0
+        How many of the next samples' targets the controller is given as
+        ``upcoming`` (shape (k, 3), mm), ``k <= preview``: those of a path
+        up to its end; of a reach task, those of the present target only
+        (its successor is not known before it starts), so that a held
+        target is previewed as held. 0: ``step(target, obs)`` only.
 
     Returns
     -------
@@ -361,6 +382,8 @@ def run_task(rig, controller, task):
             f"task {task.name!r} is at {task.rate_hz:g} Hz but the rig samples at "
             f"rig.rate_hz={rig.rate_hz!r}; build the task from this rig's sweep."
         )
+    if isinstance(preview, bool) or not isinstance(preview, Integral) or preview < 0:
+        raise ValueError(f"preview must be a number of samples, an int >= 0; got {preview!r}.")
     sweep = rig.reset()
     controller.start(sweep)
     motors = list(fmt.motor_names(rig.n_motors))
@@ -369,8 +392,14 @@ def run_task(rig, controller, task):
     n = len(task.target)
     commands, tips, times = np.empty((n, len(motors))), np.empty((n + 1, 3)), np.empty(n + 1)
     estimates = []
+    known = _known_until(task)
     for i in range(n):
-        commands[i] = np.asarray(controller.step(task.target[i].copy(), obs), dtype=float)
+        if preview:
+            upcoming = task.target[i + 1:min(i + 1 + preview, known[i])].copy()
+            command = controller.step(task.target[i].copy(), obs, upcoming=upcoming)
+        else:
+            command = controller.step(task.target[i].copy(), obs)
+        commands[i] = np.asarray(command, dtype=float)
         estimate = getattr(controller, "estimate_", None)
         estimates.append(None if estimate is None else np.asarray(estimate, dtype=float))
         obs = rig.step(commands[i])
