@@ -61,7 +61,7 @@ from sklearn.utils._param_validation import Interval, validate_params
 
 from .._kernel import bisect_right, evaluate_rows, kernel, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
-from ._lm import levenberg_marquardt
+from ._lm import _batched_levenberg_marquardt
 
 __all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_kernel", "pdl_tip"]
 
@@ -411,25 +411,41 @@ class _Reconstruction:
         dphi = (-self.across * self.sphi, self.across * self.cphi, np.zeros_like(s))
         return dgamma, dd, dphi
 
+    def take(self, index):
+        """The reconstruction of the samples ``index`` only (the same values)."""
+        part = object.__new__(_Reconstruction)
+        part.big_p = self.big_p
+        for name in ("dist", "ch", "sh", "cphi", "sphi", "s", "r", "across", "along"):
+            setattr(part, name, getattr(self, name)[index])
+        return part
 
-def _coef_jacobian(rec, rho, rho0):
+
+class _JacobianFactors:
+    """The factors ``rho``, ``rho^2`` and ``rho - rho0`` of :func:`_coef_jacobian`, formed once per ray set."""
+
+    def __init__(self, rho, rho0):
+        self.rho = rho
+        self.rho2 = rho * rho
+        self.drho = rho - rho0
+
+
+def _coef_jacobian(rec, factors):
     """Jacobian ``d delta / d c`` of shape (3, n, 6) (components e1, e2, n0) by the chain rule.
 
     ``gamma`` depends on ``(a_g, b_g)`` through ``(rho, rho^2)``, ``d`` on
     ``(a_d, b_d)`` likewise, and ``phi`` on ``(phi0, s_phi)`` through
-    ``(1, rho - rho0)``.
+    ``(1, rho - rho0)``: the factors of ``factors`` (:class:`_JacobianFactors`).
     """
     dgamma, dd, dphi = rec.derivatives()
-    rho2 = rho * rho
-    drho = rho - rho0
+    rho, rho2, drho = factors.rho, factors.rho2, factors.drho
     jac = np.empty((3, len(rho), _N_COEF))
     for axis in range(3):
-        jac[axis, :, 0] = dgamma[axis] * rho
-        jac[axis, :, 1] = dgamma[axis] * rho2
-        jac[axis, :, 2] = dd[axis] * rho
-        jac[axis, :, 3] = dd[axis] * rho2
+        np.multiply(dgamma[axis], rho, out=jac[axis, :, 0])
+        np.multiply(dgamma[axis], rho2, out=jac[axis, :, 1])
+        np.multiply(dd[axis], rho, out=jac[axis, :, 2])
+        np.multiply(dd[axis], rho2, out=jac[axis, :, 3])
         jac[axis, :, 4] = dphi[axis]
-        jac[axis, :, 5] = dphi[axis] * drho
+        np.multiply(dphi[axis], drho, out=jac[axis, :, 5])
     return jac
 
 
@@ -459,7 +475,7 @@ def _tip_from_coef(rho, c, p0, basis, rho0, jac=False):
     p = p0 + np.column_stack(rec.components()) @ basis
     if not jac:
         return p
-    return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, rho, rho0), basis)
+    return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, _JacobianFactors(rho, rho0)), basis)
 
 
 @kernel
@@ -664,6 +680,7 @@ class _RayProblem:
         self.rho0 = rho0
         self.big_p = float(np.linalg.norm(p0))
         self.target = ((p_ref - p0) @ basis.T).T.copy()  # (3, m)
+        self._factors = _JacobianFactors(rho, rho0)
         self._last = None
 
     def _evaluate(self, c):
@@ -678,7 +695,63 @@ class _RayProblem:
         rec, res = self._evaluate(c)
         if not jac:
             return res
-        return res, _coef_jacobian(rec, self.rho, self.rho0).reshape(-1, _N_COEF)
+        return res, _coef_jacobian(rec, self._factors).reshape(-1, _N_COEF)
+
+
+class _RayBatch:
+    """Residuals of several rays for :func:`_batched_levenberg_marquardt`, evaluated together.
+
+    Ray ``k`` has exactly the residuals and Jacobian of
+    ``_RayProblem(rho[k], p_ref[k], p0, basis, rho0)``: the responses, the
+    reconstruction and the Jacobian of the rays asked for are computed in
+    one pass over their samples (element by element, as for one ray), then
+    cut per ray.
+
+    Parameters
+    ----------
+    rho : list of ndarray of shape (m_k,)
+        Motor-input magnitudes of each ray's samples (deg).
+    p_ref : list of ndarray of shape (m_k, 3)
+        Reference tips of each ray (mm).
+    p0, basis, rho0
+        As in :class:`PDLParams`.
+    """
+
+    def __init__(self, rho, p_ref, p0, basis, rho0):
+        self.rho = rho
+        self.rho0 = rho0
+        self.big_p = float(np.linalg.norm(p0))
+        self.target = [((p - p0) @ basis.T).T.copy() for p in p_ref]
+        self._groups = {}
+        self._last = None
+
+    def _group(self, ids):
+        """Samples of the rays ``ids`` one after the other: ``rho``, its powers and each ray's span."""
+        key = tuple(ids)
+        if key not in self._groups:
+            sizes = [len(self.rho[k]) for k in ids]
+            ends = np.cumsum(sizes).tolist()
+            rho = np.concatenate([self.rho[k] for k in ids])
+            spans = {k: slice(end - size, end) for k, size, end in zip(ids, sizes, ends)}
+            self._groups[key] = (rho, sizes, spans, _JacobianFactors(rho, self.rho0))
+        return self._groups[key]
+
+    def residuals(self, ids, c):
+        """Residual vectors of the rays ``ids`` for their coefficients, the rows of ``c``."""
+        rho, sizes, spans, _ = self._group(ids)
+        rec = _Reconstruction(*_responses(rho, np.repeat(c, sizes, axis=0), self.rho0), self.big_p)
+        delta = np.stack(rec.components())
+        self._last = (rec, spans)
+        return [(delta[:, spans[k]] - self.target[k]).ravel() for k in ids]
+
+    def jacobians(self, ids):
+        """Jacobians of the rays ``ids`` at the coefficients of the last :meth:`residuals`."""
+        rec, last_spans = self._last
+        _, _, spans, factors = self._group(ids)
+        if list(last_spans) != list(ids):
+            rec = rec.take(np.concatenate([np.arange(len(rec.s))[last_spans[k]] for k in ids]))
+        jac = _coef_jacobian(rec, factors)
+        return [np.ascontiguousarray(jac[:, spans[k]]).reshape(-1, _N_COEF) for k in ids]
 
 
 def _check_calibration_inputs(q, p, labels, directions, neutral):
@@ -829,10 +902,16 @@ def calibrate_pdl(
     cost = np.empty(n_rays)
     n_iter = np.empty(n_rays, dtype=int)
     converged = np.empty(n_rays, dtype=bool)
-    for k, idx in enumerate(rows):
-        c0 = _initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0)
-        problem = _RayProblem(rho[idx], p[idx], p0, basis, rho0)
-        result = (solver or levenberg_marquardt)(problem, c0, max_iter=max_iter, ftol=FTOL)
+    c0 = [_initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0) for idx in rows]
+    if solver is None:  # the rays together, each with the steps of levenberg_marquardt
+        batch = _RayBatch([rho[idx] for idx in rows], [p[idx] for idx in rows], p0, basis, rho0)
+        results = _batched_levenberg_marquardt(batch, np.array(c0), max_iter=max_iter, ftol=FTOL)
+    else:
+        results = [
+            solver(_RayProblem(rho[idx], p[idx], p0, basis, rho0), c0[k], max_iter=max_iter, ftol=FTOL)
+            for k, idx in enumerate(rows)
+        ]
+    for k, result in enumerate(results):
         coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
     coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
     params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)
