@@ -139,28 +139,26 @@ def _norm(v):
     return math.sqrt(v.dot(v))
 
 
-def _solve_steps(A, diag, g, lam, ids):
+def _solve_steps(A, scale, g, lam, ids):
     """Damped steps ``dx`` (rows) of the problems ``ids``, and which of them have one.
 
-    One stacked solve of ``(A + lam diag(D)) dx = -g``; where a system is
-    singular (the stacked solve raises), each system is solved on its own,
-    growing its ``lam`` tenfold until it solves, as :func:`levenberg_marquardt`
-    does; a problem without usable step gets a row of NaN and False. ``lam``
-    is updated in place.
+    One stacked solve of ``(A + lam scale) dx = -g``, ``scale`` the diagonal
+    matrix of Marquardt's scaling; where a system is singular (the stacked
+    solve raises), each system is solved on its own, growing its ``lam``
+    tenfold until it solves, as :func:`levenberg_marquardt` does; a problem
+    without usable step gets a row of NaN and False. ``lam`` is updated in
+    place.
     """
-    p = A.shape[1]
-    D = np.zeros((len(ids), p, p))
-    D[:, range(p), range(p)] = diag[ids]
     try:
-        M = A[ids] + lam[ids][:, None, None] * D
-        return np.linalg.solve(M, -g[ids][:, :, None])[:, :, 0], np.ones(len(ids), dtype=bool)
+        M = A[ids] + lam[ids][:, None, None] * scale[ids]
+        return np.linalg.solve(M, -g[ids][:, :, None])[:, :, 0], None
     except np.linalg.LinAlgError:
         pass
-    steps, ok = np.full((len(ids), p), np.nan), np.ones(len(ids), dtype=bool)
+    steps, ok = np.full((len(ids), A.shape[1]), np.nan), np.ones(len(ids), dtype=bool)
     for i, k in enumerate(ids):
         while True:
             try:
-                steps[i] = np.linalg.solve(A[k] + lam[k] * D[i], -g[k])
+                steps[i] = np.linalg.solve(A[k] + lam[k] * scale[k], -g[k])
                 break
             except np.linalg.LinAlgError:
                 lam[k] *= 10.0
@@ -176,14 +174,14 @@ class _BatchState:
     def __init__(self, x, cost, residuals, jacobians, damping):
         n, p = x.shape
         self.x, self.cost = x, cost
-        self.g, self.A, self.diag = np.empty((n, p)), np.empty((n, p, p)), np.empty((n, p))
+        self.g, self.A, self.scale = np.empty((n, p)), np.empty((n, p, p)), np.zeros((n, p, p))
         self.lam = np.full(n, float(damping))
         self.n_iter, self.it = [1] * n, [0] * n
         self.results = [None] * n
         self.linearise(range(n), residuals, jacobians)
 
     def linearise(self, ids, residuals, jacobians):
-        """``J^T r``, ``J^T J`` and Marquardt's scaling of the problems ``ids``, as the single solver forms them."""
+        """``J^T r``, ``J^T J`` and Marquardt's scaling (a diagonal matrix) of the problems ``ids``, as the single solver forms them."""
         ids = list(ids)
         for k, r, J in zip(ids, residuals, jacobians):
             self.g[k] = J.T @ r
@@ -191,7 +189,8 @@ class _BatchState:
         d = self.A[ids].diagonal(axis1=1, axis2=2)
         # max(1.0, m) of the single solver is fmax: 1.0 where m is NaN
         floor = 1e-12 * np.fmax(1.0, d.max(axis=1))
-        self.diag[ids] = np.maximum(d, floor[:, None])
+        p = d.shape[1]
+        self.scale[np.asarray(ids)[:, None], range(p), range(p)] = np.maximum(d, floor[:, None])
 
     def finish(self, k, converged):
         """Record the result of problem ``k`` at its current parameters."""
@@ -233,11 +232,12 @@ def _batched_levenberg_marquardt(problem, x0, *, max_iter=100, ftol=1e-12, xtol=
         raise ValueError("the residuals are not finite at the initial parameters.")
     state = _BatchState(x, cost, residuals, problem.jacobians(pending), damping)
     while pending:
-        steps, ok = _solve_steps(state.A, state.diag, state.g, state.lam, pending)
-        for k in np.asarray(pending)[~ok]:
-            state.finish(k, True)
-        trial = [k for k, usable in zip(pending, ok) if usable]
-        steps = steps[ok]
+        steps, ok = _solve_steps(state.A, state.scale, state.g, state.lam, pending)
+        trial = pending
+        if ok is not None:
+            for k in np.asarray(pending)[~ok]:
+                state.finish(k, True)
+            trial, steps = [k for k, usable in zip(pending, ok) if usable], steps[ok]
         x_new = x[trial] + steps
         pending, going, accepted = [], [], []
         for k, dx, x_k, r_new in zip(trial, steps, x_new, problem.residuals(trial, x_new) if trial else []):

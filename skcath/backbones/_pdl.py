@@ -739,7 +739,8 @@ class _RayBatch:
     def residuals(self, ids, c):
         """Residual vectors of the rays ``ids`` for their coefficients, the rows of ``c``."""
         rho, sizes, spans, _ = self._group(ids)
-        rec = _Reconstruction(*_responses(rho, np.repeat(c, sizes, axis=0), self.rho0), self.big_p)
+        per_sample = np.repeat(c.T, sizes, axis=1).T  # (n, 6), each coefficient contiguous
+        rec = _Reconstruction(*_responses(rho, per_sample, self.rho0), self.big_p)
         delta = np.stack(rec.components())
         self._last = (rec, spans)
         return [(delta[:, spans[k]] - self.target[k]).ravel() for k in ids]
