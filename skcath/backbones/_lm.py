@@ -142,19 +142,25 @@ def _norm(v):
 def _solve_steps(A, scale, g, lam, ids):
     """Damped steps ``dx`` (rows) of the problems ``ids``, and which of them have one.
 
-    One stacked solve of ``(A + lam scale) dx = -g``, ``scale`` the diagonal
-    matrix of Marquardt's scaling; where a system is singular (the stacked
-    solve raises), each system is solved on its own, growing its ``lam``
-    tenfold until it solves, as :func:`levenberg_marquardt` does; a problem
-    without usable step gets a row of NaN and False. ``lam`` is updated in
-    place.
+    Several problems: one stacked solve of ``(A + lam scale) dx = -g``,
+    ``scale`` the diagonal matrix of Marquardt's scaling. One problem, or a
+    singular system (the stacked solve raises): each system solved on its
+    own, growing its ``lam`` tenfold until it solves, as
+    :func:`levenberg_marquardt` does. ``lam`` is updated in place.
+
+    Returns
+    -------
+    steps : ndarray of shape (len(ids), p)
+    ok : ndarray of bool or None
+        Which problems have a usable step; None when all have one.
     """
-    try:
-        M = A[ids] + lam[ids][:, None, None] * scale[ids]
-        return np.linalg.solve(M, -g[ids][:, :, None])[:, :, 0], None
-    except np.linalg.LinAlgError:
-        pass
-    steps, ok = np.full((len(ids), A.shape[1]), np.nan), np.ones(len(ids), dtype=bool)
+    if len(ids) > 1:
+        try:
+            M = A[ids] + lam[ids][:, None, None] * scale[ids]
+            return np.linalg.solve(M, -g[ids][:, :, None])[:, :, 0], None
+        except np.linalg.LinAlgError:
+            pass
+    steps, ok = np.empty((len(ids), A.shape[1])), None
     for i, k in enumerate(ids):
         while True:
             try:
@@ -163,6 +169,7 @@ def _solve_steps(A, scale, g, lam, ids):
             except np.linalg.LinAlgError:
                 lam[k] *= 10.0
                 if lam[k] > 1e16:  # no usable step: x is as good as it gets
+                    ok = np.ones(len(ids), dtype=bool) if ok is None else ok
                     ok[i] = False
                     break
     return steps, ok
@@ -174,23 +181,22 @@ class _BatchState:
     def __init__(self, x, cost, residuals, jacobians, damping):
         n, p = x.shape
         self.x, self.cost = x, cost
-        self.g, self.A, self.scale = np.empty((n, p)), np.empty((n, p, p)), np.zeros((n, p, p))
+        self.g, self.A, self.scale = np.empty((n, p)), np.empty((n, p, p)), np.empty((n, p, p))
         self.lam = np.full(n, float(damping))
         self.n_iter, self.it = [1] * n, [0] * n
         self.results = [None] * n
         self.linearise(range(n), residuals, jacobians)
 
     def linearise(self, ids, residuals, jacobians):
-        """``J^T r``, ``J^T J`` and Marquardt's scaling (a diagonal matrix) of the problems ``ids``, as the single solver forms them."""
-        ids = list(ids)
+        """``J^T r``, ``J^T J`` and Marquardt's scaling (a diagonal matrix) of the problems ``ids``.
+
+        Formed as :func:`levenberg_marquardt` forms them.
+        """
         for k, r, J in zip(ids, residuals, jacobians):
             self.g[k] = J.T @ r
-            self.A[k] = J.T @ J
-        d = self.A[ids].diagonal(axis1=1, axis2=2)
-        # max(1.0, m) of the single solver is fmax: 1.0 where m is NaN
-        floor = 1e-12 * np.fmax(1.0, d.max(axis=1))
-        p = d.shape[1]
-        self.scale[np.asarray(ids)[:, None], range(p), range(p)] = np.maximum(d, floor[:, None])
+            self.A[k] = A = J.T @ J
+            d = A.diagonal()
+            self.scale[k] = np.diag(np.maximum(d, 1e-12 * max(1.0, d.max())))
 
     def finish(self, k, converged):
         """Record the result of problem ``k`` at its current parameters."""

@@ -377,46 +377,60 @@ class _Reconstruction:
         self.dist = dist
         h = 0.5 * gamma
         self.ch, self.sh = np.cos(h), np.sin(h)
-        self.cphi, self.sphi = np.cos(phi), np.sin(phi)
-        disc = dist * dist - (big_p * self.sh) ** 2
+        self._set_azimuth(np.empty((2, len(phi))))
+        np.cos(phi, out=self.cphi)
+        np.sin(phi, out=self.sphi)
+        lateral = big_p * self.sh
+        disc = dist * dist - lateral**2
         self.s = np.sign(disc) * np.sqrt(np.abs(disc))
         self.r = big_p * self.ch + self.s
         self.across = self.r * self.sh
-        self.along = self.s * self.ch - big_p * self.sh * self.sh
+        self.along = self.s * self.ch - lateral * self.sh
+
+    def _set_azimuth(self, cs):
+        """``cos(phi)`` and ``sin(phi)`` as the rows of ``cs`` (2, n), to multiply both at once."""
+        self.cs = cs
+        self.cphi, self.sphi = cs
 
     def components(self):
-        """``delta`` in the basis, as three arrays of shape (n,) (mm)."""
-        return self.across * self.cphi, self.across * self.sphi, self.along
+        """``delta`` in the basis: rows ``e1``, ``e2``, ``n0``, shape (3, n) (mm)."""
+        delta = np.empty((3, len(self.s)))
+        np.multiply(self.across, self.cs, out=delta[:2])
+        delta[2] = self.along
+        return delta
 
     def derivatives(self):
         """Derivatives of the three components with respect to ``gamma``, ``d`` and ``phi``.
 
         Returns
         -------
-        dgamma, dd, dphi : tuple of three ndarrays of shape (n,)
-            Per component (``e1``, ``e2``, ``n0``): ``d delta / d gamma``
+        dgamma, dd, dphi : ndarrays of shape (3, n)
+            Rows per component (``e1``, ``e2``, ``n0``): ``d delta / d gamma``
             (mm/rad), ``d delta / d d`` (mm/mm) and ``d delta / d phi`` (mm/rad).
         """
         big_p, ch, sh, s = self.big_p, self.ch, self.sh, self.s
-        active = np.abs(s) > _SQRT_FLOOR * max(big_p, 1.0)
-        inv_s = np.divide(1.0, np.abs(s), out=np.zeros_like(s), where=active)
+        abs_s = np.abs(s)
+        inv_s = np.divide(1.0, abs_s, out=np.zeros_like(s), where=abs_s > _SQRT_FLOOR * max(big_p, 1.0))
         ds_dd = self.dist * inv_s
         ds_dh = -(big_p * big_p) * sh * ch * inv_s
+        dgamma, dd, dphi = np.empty((3, 3, len(s)))
         # d/dgamma = 0.5 d/dh
-        dacross = 0.5 * ((ds_dh - big_p * sh) * sh + self.r * ch)
-        dalong = 0.5 * (ds_dh * ch - s * sh - 2.0 * big_p * sh * ch)
-        lateral = ds_dd * sh
-        dgamma = (dacross * self.cphi, dacross * self.sphi, dalong)
-        dd = (lateral * self.cphi, lateral * self.sphi, ds_dd * ch)
-        dphi = (-self.across * self.sphi, self.across * self.cphi, np.zeros_like(s))
+        np.multiply(0.5 * ((ds_dh - big_p * sh) * sh + self.r * ch), self.cs, out=dgamma[:2])
+        dgamma[2] = 0.5 * (ds_dh * ch - s * sh - 2.0 * big_p * sh * ch)
+        np.multiply(ds_dd * sh, self.cs, out=dd[:2])
+        np.multiply(ds_dd, ch, out=dd[2])
+        np.multiply(-self.across, self.sphi, out=dphi[0])
+        np.multiply(self.across, self.cphi, out=dphi[1])
+        dphi[2] = 0.0
         return dgamma, dd, dphi
 
     def take(self, index):
         """The reconstruction of the samples ``index`` only (the same values)."""
         part = object.__new__(_Reconstruction)
         part.big_p = self.big_p
-        for name in ("dist", "ch", "sh", "cphi", "sphi", "s", "r", "across", "along"):
+        for name in ("dist", "ch", "sh", "s", "r", "across", "along"):
             setattr(part, name, getattr(self, name)[index])
+        part._set_azimuth(self.cs[:, index])
         return part
 
 
@@ -439,13 +453,12 @@ def _coef_jacobian(rec, factors):
     dgamma, dd, dphi = rec.derivatives()
     rho, rho2, drho = factors.rho, factors.rho2, factors.drho
     jac = np.empty((3, len(rho), _N_COEF))
-    for axis in range(3):
-        np.multiply(dgamma[axis], rho, out=jac[axis, :, 0])
-        np.multiply(dgamma[axis], rho2, out=jac[axis, :, 1])
-        np.multiply(dd[axis], rho, out=jac[axis, :, 2])
-        np.multiply(dd[axis], rho2, out=jac[axis, :, 3])
-        jac[axis, :, 4] = dphi[axis]
-        np.multiply(dphi[axis], drho, out=jac[axis, :, 5])
+    np.multiply(dgamma, rho, out=jac[:, :, 0])
+    np.multiply(dgamma, rho2, out=jac[:, :, 1])
+    np.multiply(dd, rho, out=jac[:, :, 2])
+    np.multiply(dd, rho2, out=jac[:, :, 3])
+    jac[:, :, 4] = dphi
+    np.multiply(dphi, drho, out=jac[:, :, 5])
     return jac
 
 
@@ -472,7 +485,7 @@ def _tip_from_coef(rho, c, p0, basis, rho0, jac=False):
         ``d`` and ``phi``).
     """
     rec = _Reconstruction(*_responses(rho, c, rho0), float(np.linalg.norm(p0)))
-    p = p0 + np.column_stack(rec.components()) @ basis
+    p = p0 + np.ascontiguousarray(rec.components().T) @ basis
     if not jac:
         return p
     return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, _JacobianFactors(rho, rho0)), basis)
@@ -687,7 +700,7 @@ class _RayProblem:
         if self._last is not None and np.array_equal(self._last[0], c):
             return self._last[1], self._last[2]
         rec = _Reconstruction(*_responses(self.rho, c, self.rho0), self.big_p)
-        res = (np.stack(rec.components()) - self.target).ravel()
+        res = (rec.components() - self.target).ravel()
         self._last = (np.array(c, copy=True), rec, res)
         return rec, res
 
@@ -739,9 +752,10 @@ class _RayBatch:
     def residuals(self, ids, c):
         """Residual vectors of the rays ``ids`` for their coefficients, the rows of ``c``."""
         rho, sizes, spans, _ = self._group(ids)
-        per_sample = np.repeat(c.T, sizes, axis=1).T  # (n, 6), each coefficient contiguous
+        # one ray: its coefficients broadcast; several: (n, 6), each coefficient contiguous
+        per_sample = c[0] if len(ids) == 1 else np.repeat(c.T, sizes, axis=1).T
         rec = _Reconstruction(*_responses(rho, per_sample, self.rho0), self.big_p)
-        delta = np.stack(rec.components())
+        delta = rec.components()
         self._last = (rec, spans)
         return [(delta[:, spans[k]] - self.target[k]).ravel() for k in ids]
 
