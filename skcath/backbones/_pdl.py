@@ -840,7 +840,10 @@ def calibrate_pdl(
     4. The six coefficients of each ray are refined by damped Gauss-Newton
        (:func:`~skcath.backbones.levenberg_marquardt`) on the 3-D residuals
        ``p(rho_i) - p_i`` of its rows, with ``p0`` and the basis fixed and an
-       analytic Jacobian. Rays are independent.
+       analytic Jacobian. Rays are independent; they are solved together,
+       each with exactly the steps (and results) that the solver takes on
+       it alone, so that the per-call cost of each step is paid once for
+       all the rays still being refined.
     5. ``phi0`` is unwrapped from ray to ray.
 
     Parameters
@@ -867,8 +870,9 @@ def calibrate_pdl(
         Whether to also return a summary of the fit.
     solver : callable, default=None
         The least-squares solver of every ray, as for
-        :func:`~skcath.backbones.calibrate_pcc`; None means
-        :func:`~skcath.backbones.levenberg_marquardt`.
+        :func:`~skcath.backbones.calibrate_pcc`, called on each ray in
+        turn; None means :func:`~skcath.backbones.levenberg_marquardt` on all
+        the rays together (the same numbers as passing it).
 
     Returns
     -------
