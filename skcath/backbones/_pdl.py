@@ -722,17 +722,14 @@ class _RayBatch:
 
     Parameters
     ----------
-    rho : list of ndarray of shape (m_k,)
-        Motor-input magnitudes of each ray's samples (deg).
-    p_ref : list of ndarray of shape (m_k, 3)
-        Reference tips of each ray (mm).
+    rho, p_ref : list of ndarray
+        Per ray, the ``rho`` (deg) and ``p_ref`` (mm) of :class:`_RayProblem`.
     p0, basis, rho0
         As in :class:`PDLParams`.
     """
 
     def __init__(self, rho, p_ref, p0, basis, rho0):
-        self.rho = rho
-        self.rho0 = rho0
+        self.rho, self.rho0 = rho, rho0
         self.big_p = float(np.linalg.norm(p0))
         self.target = [((p - p0) @ basis.T).T.copy() for p in p_ref]
         self._groups = {}
