@@ -132,8 +132,6 @@ def levenberg_marquardt(
     return LMResult(x, cost, n_iter, converged)
 
 
-
-
 def _norm(v):
     """``np.linalg.norm`` of a float vector, as it computes it (``sqrt(v . v)``), for one call."""
     return math.sqrt(v.dot(v))
