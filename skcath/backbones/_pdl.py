@@ -61,7 +61,7 @@ from sklearn.utils._param_validation import Interval, validate_params
 
 from .._kernel import bisect_right, evaluate_rows, kernel, offsets, row_loop, tip_kernel
 from ._arrays import frozen_array
-from ._lm import levenberg_marquardt
+from ._lm import _batched_levenberg_marquardt
 
 __all__ = ["COEF_NAMES", "PDLParams", "calibrate_pdl", "pdl_kernel", "pdl_tip"]
 
@@ -377,59 +377,88 @@ class _Reconstruction:
         self.dist = dist
         h = 0.5 * gamma
         self.ch, self.sh = np.cos(h), np.sin(h)
-        self.cphi, self.sphi = np.cos(phi), np.sin(phi)
-        disc = dist * dist - (big_p * self.sh) ** 2
+        self._set_azimuth(np.empty((2, len(phi))))
+        np.cos(phi, out=self.cphi)
+        np.sin(phi, out=self.sphi)
+        lateral = big_p * self.sh
+        disc = dist * dist - lateral**2
         self.s = np.sign(disc) * np.sqrt(np.abs(disc))
         self.r = big_p * self.ch + self.s
         self.across = self.r * self.sh
-        self.along = self.s * self.ch - big_p * self.sh * self.sh
+        self.along = self.s * self.ch - lateral * self.sh
+
+    def _set_azimuth(self, cs):
+        """``cos(phi)`` and ``sin(phi)`` as the rows of ``cs`` (2, n), to multiply both at once."""
+        self.cs = cs
+        self.cphi, self.sphi = cs
 
     def components(self):
-        """``delta`` in the basis, as three arrays of shape (n,) (mm)."""
-        return self.across * self.cphi, self.across * self.sphi, self.along
+        """``delta`` in the basis: rows ``e1``, ``e2``, ``n0``, shape (3, n) (mm)."""
+        delta = np.empty((3, len(self.s)))
+        np.multiply(self.across, self.cs, out=delta[:2])
+        delta[2] = self.along
+        return delta
 
     def derivatives(self):
         """Derivatives of the three components with respect to ``gamma``, ``d`` and ``phi``.
 
         Returns
         -------
-        dgamma, dd, dphi : tuple of three ndarrays of shape (n,)
-            Per component (``e1``, ``e2``, ``n0``): ``d delta / d gamma``
+        dgamma, dd, dphi : ndarrays of shape (3, n)
+            Rows per component (``e1``, ``e2``, ``n0``): ``d delta / d gamma``
             (mm/rad), ``d delta / d d`` (mm/mm) and ``d delta / d phi`` (mm/rad).
         """
         big_p, ch, sh, s = self.big_p, self.ch, self.sh, self.s
-        active = np.abs(s) > _SQRT_FLOOR * max(big_p, 1.0)
-        inv_s = np.divide(1.0, np.abs(s), out=np.zeros_like(s), where=active)
+        abs_s = np.abs(s)
+        inv_s = np.divide(1.0, abs_s, out=np.zeros_like(s), where=abs_s > _SQRT_FLOOR * max(big_p, 1.0))
         ds_dd = self.dist * inv_s
         ds_dh = -(big_p * big_p) * sh * ch * inv_s
+        dgamma, dd, dphi = np.empty((3, 3, len(s)))
         # d/dgamma = 0.5 d/dh
-        dacross = 0.5 * ((ds_dh - big_p * sh) * sh + self.r * ch)
-        dalong = 0.5 * (ds_dh * ch - s * sh - 2.0 * big_p * sh * ch)
-        lateral = ds_dd * sh
-        dgamma = (dacross * self.cphi, dacross * self.sphi, dalong)
-        dd = (lateral * self.cphi, lateral * self.sphi, ds_dd * ch)
-        dphi = (-self.across * self.sphi, self.across * self.cphi, np.zeros_like(s))
+        np.multiply(0.5 * ((ds_dh - big_p * sh) * sh + self.r * ch), self.cs, out=dgamma[:2])
+        dgamma[2] = 0.5 * (ds_dh * ch - s * sh - 2.0 * big_p * sh * ch)
+        np.multiply(ds_dd * sh, self.cs, out=dd[:2])
+        np.multiply(ds_dd, ch, out=dd[2])
+        np.multiply(-self.across, self.sphi, out=dphi[0])
+        np.multiply(self.across, self.cphi, out=dphi[1])
+        dphi[2] = 0.0
         return dgamma, dd, dphi
 
+    def take(self, index):
+        """The reconstruction of the samples ``index`` only (the same values)."""
+        part = object.__new__(_Reconstruction)
+        part.big_p = self.big_p
+        for name in ("dist", "ch", "sh", "s", "r", "across", "along"):
+            setattr(part, name, getattr(self, name)[index])
+        part._set_azimuth(self.cs[:, index])
+        return part
 
-def _coef_jacobian(rec, rho, rho0):
+
+class _JacobianFactors:
+    """The factors ``rho``, ``rho^2`` and ``rho - rho0`` of :func:`_coef_jacobian`, formed once per ray set."""
+
+    def __init__(self, rho, rho0):
+        self.rho = rho
+        self.rho2 = rho * rho
+        self.drho = rho - rho0
+
+
+def _coef_jacobian(rec, factors):
     """Jacobian ``d delta / d c`` of shape (3, n, 6) (components e1, e2, n0) by the chain rule.
 
     ``gamma`` depends on ``(a_g, b_g)`` through ``(rho, rho^2)``, ``d`` on
     ``(a_d, b_d)`` likewise, and ``phi`` on ``(phi0, s_phi)`` through
-    ``(1, rho - rho0)``.
+    ``(1, rho - rho0)``: the factors of ``factors`` (:class:`_JacobianFactors`).
     """
     dgamma, dd, dphi = rec.derivatives()
-    rho2 = rho * rho
-    drho = rho - rho0
+    rho, rho2, drho = factors.rho, factors.rho2, factors.drho
     jac = np.empty((3, len(rho), _N_COEF))
-    for axis in range(3):
-        jac[axis, :, 0] = dgamma[axis] * rho
-        jac[axis, :, 1] = dgamma[axis] * rho2
-        jac[axis, :, 2] = dd[axis] * rho
-        jac[axis, :, 3] = dd[axis] * rho2
-        jac[axis, :, 4] = dphi[axis]
-        jac[axis, :, 5] = dphi[axis] * drho
+    np.multiply(dgamma, rho, out=jac[:, :, 0])
+    np.multiply(dgamma, rho2, out=jac[:, :, 1])
+    np.multiply(dd, rho, out=jac[:, :, 2])
+    np.multiply(dd, rho2, out=jac[:, :, 3])
+    jac[:, :, 4] = dphi
+    np.multiply(dphi, drho, out=jac[:, :, 5])
     return jac
 
 
@@ -456,10 +485,10 @@ def _tip_from_coef(rho, c, p0, basis, rho0, jac=False):
         ``d`` and ``phi``).
     """
     rec = _Reconstruction(*_responses(rho, c, rho0), float(np.linalg.norm(p0)))
-    p = p0 + np.column_stack(rec.components()) @ basis
+    p = p0 + np.ascontiguousarray(rec.components().T) @ basis
     if not jac:
         return p
-    return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, rho, rho0), basis)
+    return p, np.einsum("anc,ax->nxc", _coef_jacobian(rec, _JacobianFactors(rho, rho0)), basis)
 
 
 @kernel
@@ -664,13 +693,14 @@ class _RayProblem:
         self.rho0 = rho0
         self.big_p = float(np.linalg.norm(p0))
         self.target = ((p_ref - p0) @ basis.T).T.copy()  # (3, m)
+        self._factors = _JacobianFactors(rho, rho0)
         self._last = None
 
     def _evaluate(self, c):
         if self._last is not None and np.array_equal(self._last[0], c):
             return self._last[1], self._last[2]
         rec = _Reconstruction(*_responses(self.rho, c, self.rho0), self.big_p)
-        res = (np.stack(rec.components()) - self.target).ravel()
+        res = (rec.components() - self.target).ravel()
         self._last = (np.array(c, copy=True), rec, res)
         return rec, res
 
@@ -678,7 +708,62 @@ class _RayProblem:
         rec, res = self._evaluate(c)
         if not jac:
             return res
-        return res, _coef_jacobian(rec, self.rho, self.rho0).reshape(-1, _N_COEF)
+        return res, _coef_jacobian(rec, self._factors).reshape(-1, _N_COEF)
+
+
+class _RayBatch:
+    """Residuals of several rays for :func:`_batched_levenberg_marquardt`, evaluated together.
+
+    Ray ``k`` has exactly the residuals and Jacobian of
+    ``_RayProblem(rho[k], p_ref[k], p0, basis, rho0)``: the responses, the
+    reconstruction and the Jacobian of the rays asked for are computed in
+    one pass over their samples (element by element, as for one ray), then
+    cut per ray.
+
+    Parameters
+    ----------
+    rho, p_ref : list of ndarray
+        Per ray, the ``rho`` (deg) and ``p_ref`` (mm) of :class:`_RayProblem`.
+    p0, basis, rho0
+        As in :class:`PDLParams`.
+    """
+
+    def __init__(self, rho, p_ref, p0, basis, rho0):
+        self.rho, self.rho0 = rho, rho0
+        self.big_p = float(np.linalg.norm(p0))
+        self.target = [((p - p0) @ basis.T).T.copy() for p in p_ref]
+        self._groups = {}
+        self._last = None
+
+    def _group(self, ids):
+        """Samples of the rays ``ids`` one after the other: ``rho``, its powers and each ray's span."""
+        key = tuple(ids)
+        if key not in self._groups:
+            sizes = [len(self.rho[k]) for k in ids]
+            ends = np.cumsum(sizes).tolist()
+            rho = np.concatenate([self.rho[k] for k in ids])
+            spans = {k: slice(end - size, end) for k, size, end in zip(ids, sizes, ends)}
+            self._groups[key] = (rho, sizes, spans, _JacobianFactors(rho, self.rho0))
+        return self._groups[key]
+
+    def residuals(self, ids, c):
+        """Residual vectors of the rays ``ids`` for their coefficients, the rows of ``c``."""
+        rho, sizes, spans, _ = self._group(ids)
+        # one ray: its coefficients broadcast; several: (n, 6), each coefficient contiguous
+        per_sample = c[0] if len(ids) == 1 else np.repeat(c.T, sizes, axis=1).T
+        rec = _Reconstruction(*_responses(rho, per_sample, self.rho0), self.big_p)
+        delta = rec.components()
+        self._last = (rec, spans)
+        return [(delta[:, spans[k]] - self.target[k]).ravel() for k in ids]
+
+    def jacobians(self, ids):
+        """Jacobians of the rays ``ids`` at the coefficients of the last :meth:`residuals`."""
+        rec, last_spans = self._last
+        _, _, spans, factors = self._group(ids)
+        if list(last_spans) != list(ids):
+            rec = rec.take(np.concatenate([np.arange(len(rec.s))[last_spans[k]] for k in ids]))
+        jac = _coef_jacobian(rec, factors)
+        return [np.ascontiguousarray(jac[:, spans[k]]).reshape(-1, _N_COEF) for k in ids]
 
 
 def _check_calibration_inputs(q, p, labels, directions, neutral):
@@ -752,7 +837,10 @@ def calibrate_pdl(
     4. The six coefficients of each ray are refined by damped Gauss-Newton
        (:func:`~skcath.backbones.levenberg_marquardt`) on the 3-D residuals
        ``p(rho_i) - p_i`` of its rows, with ``p0`` and the basis fixed and an
-       analytic Jacobian. Rays are independent.
+       analytic Jacobian. Rays are independent; they are solved together,
+       each with exactly the steps (and results) that the solver takes on
+       it alone, so that the per-call cost of each step is paid once for
+       all the rays still being refined.
     5. ``phi0`` is unwrapped from ray to ray.
 
     Parameters
@@ -779,8 +867,9 @@ def calibrate_pdl(
         Whether to also return a summary of the fit.
     solver : callable, default=None
         The least-squares solver of every ray, as for
-        :func:`~skcath.backbones.calibrate_pcc`; None means
-        :func:`~skcath.backbones.levenberg_marquardt`.
+        :func:`~skcath.backbones.calibrate_pcc`, called on each ray in
+        turn; None means :func:`~skcath.backbones.levenberg_marquardt` on all
+        the rays together (the same numbers as passing it).
 
     Returns
     -------
@@ -829,10 +918,16 @@ def calibrate_pdl(
     cost = np.empty(n_rays)
     n_iter = np.empty(n_rays, dtype=int)
     converged = np.empty(n_rays, dtype=bool)
-    for k, idx in enumerate(rows):
-        c0 = _initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0)
-        problem = _RayProblem(rho[idx], p[idx], p0, basis, rho0)
-        result = (solver or levenberg_marquardt)(problem, c0, max_iter=max_iter, ftol=FTOL)
+    c0 = [_initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0) for idx in rows]
+    if solver is None:  # the rays together, each with the steps of levenberg_marquardt
+        batch = _RayBatch([rho[idx] for idx in rows], [p[idx] for idx in rows], p0, basis, rho0)
+        results = _batched_levenberg_marquardt(batch, np.array(c0), max_iter=max_iter, ftol=FTOL)
+    else:
+        results = [
+            solver(_RayProblem(rho[idx], p[idx], p0, basis, rho0), c0[k], max_iter=max_iter, ftol=FTOL)
+            for k, idx in enumerate(rows)
+        ]
+    for k, result in enumerate(results):
         coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
     coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
     params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)
