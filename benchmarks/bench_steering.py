@@ -675,7 +675,7 @@ def main():
     if args.timing:
         times = time_steps(args.timing, args.seed)
         for name, us in times.items():
-            print(f"| {name:38s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x "
+            print(f"| {name:44s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x "
                   f"| {us / times['FeedbackController.step']:5.1f} x |")
         return
     mechanisms = args.mechanisms or (("play",) if args.quick else ("play", "bouc_wen", "dahl_creep"))

@@ -26,11 +26,10 @@ from skcath.residuals import NoResidual
 CHANNELS = ["q1", "q2", "tau1", "tau2"]
 
 
-@pytest.fixture(scope="module")
-def setup():
-    """A PCC pipeline with the play fitted on a run (S02), the sweep of another (S05), and model tips along a path."""
+def _model_path(hysteresis):
+    """A PCC pipeline with ``hysteresis`` fitted on a run (S02), the sweep of another (S05), and model tips along a path."""
     train = simulate_run(setting="S02", random_state=1)
-    backbone = PCCBackbone(hysteresis="play").fit(train.X)
+    backbone = PCCBackbone(hysteresis=hysteresis).fit(train.X)
     pipe = Pipeline([("backbone", backbone),
                      ("residual", NoResidual().fit(backbone.transform(train.X), np.asarray(train.y)))])
     test = simulate_run(setting="S05", random_state=2).X
@@ -42,6 +41,12 @@ def setup():
     q = est.q_neutral_ + np.c_[25.0 * np.sin(2 * np.pi * k / 30), 10.0 * np.sin(2 * np.pi * k / 90)]
     targets = np.array([est.step(*row, *torques).copy() for row in q])
     return pipe, sweep, targets
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """The pipeline with the play, its sweep and the model tips along reversing motors."""
+    return _model_path("play")
 
 
 class Plant:
@@ -298,17 +303,7 @@ def test_compiled_preview_gives_the_numpy_engines_commands(setup, case):
 @needs_numba
 def test_compiled_preview_through_the_pi_gives_the_numpy_engines_commands():
     """The PI's plan in the compiled step (a copy of its forward state stepped): the numpy engine's commands."""
-    train = simulate_run(setting="S02", random_state=1)
-    backbone = PCCBackbone(hysteresis="pi").fit(train.X)
-    pipe = Pipeline([("backbone", backbone),
-                     ("residual", NoResidual().fit(backbone.transform(train.X), np.asarray(train.y)))])
-    test = simulate_run(setting="S05", random_state=2).X
-    sweep = test[test["phase"] == "sweep"]
-    est = OnlineEstimator(pipe, engine="numpy").start(sweep)
-    torques = sweep[["tau1", "tau2"]].to_numpy()[-1]
-    k = np.arange(80)
-    q = est.q_neutral_ + np.c_[20.0 * np.sin(2 * np.pi * k / 30), 8.0 * np.sin(2 * np.pi * k / 80)]
-    targets = np.array([est.step(*row, *torques).copy() for row in q])
+    pipe, sweep, targets = _model_path("pi")
     for Controller, kwargs in ((FeedforwardController, {"rate_limit": 60.0}),
                                (FeedbackController, {"rate_limit": 60.0, "dead_band": 0.5})):
         got = _both_engines(lambda engine: Controller(pipe, preview=6, engine=engine, **kwargs), pipe, sweep,
