@@ -31,11 +31,16 @@ def _pi_arrays(inverse):
     return link, theta, inverse.state, inverse.dt, up, down
 
 
-def _pi_forward_arrays(inverse):
-    """What the compiled preview reads of a PI's forward step: ``(pack(), up, down)`` (placeholders for another)."""
+def _pi_forward(inverse):
+    """What the compiled preview reads of a PI's forward step, in one array: ``pack()``, then its dead band up and down.
+
+    A placeholder for another inverse.
+    """
     if inverse.kind != "pi":
-        return tuple(np.zeros(1) for _ in range(3))
-    return tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (inverse.model.pack(), *inverse.model._bands()))
+        return np.zeros(1)
+    n = np.size(inverse.state) // (inverse.model.thresholds.size + 2)
+    up, down = (np.broadcast_to(band, (n,)) for band in inverse.model._bands())
+    return np.concatenate([inverse.model.pack(), up, down]).astype(np.float64)
 
 
 class CompiledStep:
@@ -81,7 +86,7 @@ class CompiledStep:
         self.correction = s[j.S_CORRECTION : j.S_CORRECTION + 3]
         window = np.zeros((max(controller.preview, 1), 3 + n))  # the targets in view and their solutions
         self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips, _pi_arrays(inverse),
-                      _pi_forward_arrays(inverse), window)
+                      _pi_forward(inverse), window)
         self._nothing_ahead = np.empty((0, 3))
         self._kernel = j.control_kernel()
 

@@ -279,15 +279,17 @@ def _lead(s, pi, pi_forward, z_wanted, z_ahead, q):
     (deg), each command from the previous, within the motor limits, the
     effective angles (for the PI, a copy of the forward state) followed
     through the hysteresis; ``pi_forward`` is the PI's
-    ``(pack(), up, down)`` (:meth:`~skcath.backbones.PrandtlIshlinskii.pack`, its dead band up and down).
+    :meth:`~skcath.backbones.PrandtlIshlinskii.pack`, then its dead band up
+    and down (one value per motor each).
     """
     n, h = q.shape[0], z_ahead.shape[0] + 1
     low, high, neutral, radius = _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n), s[S_RADIUS]
     z_state, q_previous = _block(s, B_EFFECTIVE, n).copy(), _block(s, B_COMMAND, n).copy()
     link, theta, forward, dt, up, down = pi
     plan_pi = (link, theta, forward.copy(), dt, up, down)  # the stream's forward state left alone
-    forward_theta, forward_up, forward_down = pi_forward
-    size, width, pi_kind = int(forward_theta[0]) + 2, s[S_WIDTH], s[S_KIND] == KIND_PI
+    size, width, pi_kind = int(pi_forward[0]) + 2, s[S_WIDTH], s[S_KIND] == KIND_PI
+    packed = 3 + 2 * int(pi_forward[0])  # [K, kappa, tau, g..., w...]
+    forward_theta, forward_up, forward_down = pi_forward[:packed], pi_forward[packed:], pi_forward[packed + n:]
     u, z = np.empty((h, n)), np.empty(n)
     for r in range(h):
         if r == 0:
@@ -427,7 +429,7 @@ def control_step(view, s, issued, aims, grid_z, grid_tips, pi, pi_forward, windo
         and whether its command went out unlimited (1.0) or not (0.0); updated.
     grid_z, grid_tips : ndarray of shape (n_seeds, n_motors), (n_seeds, 3)
         The seeds of the solve: effective angles (deg) and the backbone's tips there (mm).
-    pi, pi_forward : tuple of ndarray
+    pi, pi_forward : tuple of ndarray, ndarray
         The PI's inverse (see :func:`_pi_commands`) and forward step (see
         :func:`_lead`); read with ``S_KIND == KIND_PI`` only.
     window : ndarray of shape (max(preview, 1), 3 + n_motors)
