@@ -87,8 +87,9 @@ the same engine.
 each controller and of the estimator alone on the same samples, on the
 numba engine and the fast path (observations as tuples), for a pipeline of
 PDL with the play and ``NoResidual`` (see ``time_steps``); then the
-feedback on the numpy engine, and with ``preview=10`` (numpy, the next 10
-targets given), each also as a ratio to the feedback's compiled step.
+feedback on the numpy engine, and with ``preview=10`` (the next 10 targets
+given) on the numba engine (the preview inside the compiled step) and on
+the numpy engine, each also as a ratio to the feedback's compiled step.
 ``--rig-timing N`` times the rig itself first: ``SimulatedCatheter.reset``
 and N ``step`` calls with the tracker off and on (wall and CPU time).
 
@@ -610,7 +611,9 @@ def time_steps(n_steps, seed):
                              ("FeedbackController.step", FeedbackController(pipe, engine="numba")),
                              ("FeedbackController.step, numpy", FeedbackController(pipe, engine="numpy")),
                              (f"FeedbackController.step, preview={PREVIEW}", FeedbackController(
-                                 pipe, preview=PREVIEW))):
+                                 pipe, preview=PREVIEW, engine="numba")),
+                             (f"FeedbackController.step, preview={PREVIEW}, numpy", FeedbackController(
+                                 pipe, preview=PREVIEW, engine="numpy"))):
         if controller is None:
             est.reset()
             cpu = time.process_time()
@@ -672,7 +675,7 @@ def main():
     if args.timing:
         times = time_steps(args.timing, args.seed)
         for name, us in times.items():
-            print(f"| {name:38s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x "
+            print(f"| {name:44s} | {us:7.1f} us | {us / times['estimator step']:5.1f} x "
                   f"| {us / times['FeedbackController.step']:5.1f} x |")
         return
     mechanisms = args.mechanisms or (("play",) if args.quick else ("play", "bouc_wen", "dahl_creep"))

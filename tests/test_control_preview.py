@@ -26,11 +26,10 @@ from skcath.residuals import NoResidual
 CHANNELS = ["q1", "q2", "tau1", "tau2"]
 
 
-@pytest.fixture(scope="module")
-def setup():
-    """A PCC pipeline with the play fitted on a run (S02), the sweep of another (S05), and model tips along a path."""
+def _model_path(hysteresis):
+    """A PCC pipeline with ``hysteresis`` fitted on a run (S02), the sweep of another (S05), and model tips along a path."""
     train = simulate_run(setting="S02", random_state=1)
-    backbone = PCCBackbone(hysteresis="play").fit(train.X)
+    backbone = PCCBackbone(hysteresis=hysteresis).fit(train.X)
     pipe = Pipeline([("backbone", backbone),
                      ("residual", NoResidual().fit(backbone.transform(train.X), np.asarray(train.y)))])
     test = simulate_run(setting="S05", random_state=2).X
@@ -42,6 +41,12 @@ def setup():
     q = est.q_neutral_ + np.c_[25.0 * np.sin(2 * np.pi * k / 30), 10.0 * np.sin(2 * np.pi * k / 90)]
     targets = np.array([est.step(*row, *torques).copy() for row in q])
     return pipe, sweep, targets
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """The pipeline with the play, its sweep and the model tips along reversing motors."""
+    return _model_path("play")
 
 
 class Plant:
@@ -162,7 +167,6 @@ def test_preview_keeps_the_limits_and_tracks_the_reversals_better(setup, Control
     errors, all_commands = {}, {}
     for preview in (0, 8):
         controller = Controller(pipe, rate_limit=rate, preview=preview).start(sweep)
-        assert preview == 0 or controller.estimator_.engine_ == "numpy"
         previous = controller.command_.copy()
         tips, commands = _drive(controller, Plant(pipe, sweep), targets, preview)
         steps = np.abs(np.diff(np.vstack([previous, commands]), axis=0))
@@ -190,9 +194,6 @@ def test_bad_upcoming_and_engine_raise_naming_them(setup):
         controller.step(targets[0], obs, upcoming=[[1.0, 2.0, "far"]])
     assert np.isnan(bad[2, 1])  # not modified
     controller.step(targets[0], obs, upcoming=np.empty((0, 3)))  # nothing ahead known: no preview
-    if importlib.util.find_spec("numba") is not None:
-        with pytest.raises(ValueError, match="preview=4 runs on the numpy engine"):
-            FeedforwardController(pipe, preview=4, engine="numba").start(sweep)
 
 
 def test_run_task_passes_the_known_targets_ahead():
@@ -245,3 +246,84 @@ def test_plan_through_the_pi_leaves_the_stream_alone_and_gives_the_wanted_angles
         forward, effective = model.step(forward, command, 0.1)
         reached.append(effective)
     np.testing.assert_allclose(reached, z_ahead, atol=1e-9)
+
+
+needs_numba = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="the numba engine needs numba")
+
+
+def _both_engines(make, pipe, sweep, targets, preview, windows=None):
+    """Commands, aims and corrections of ``make(engine)`` on both engines, the next targets given as ``windows`` says."""
+    got = {}
+    for engine in ("numpy", "numba"):
+        controller = make(engine).start(sweep)
+        assert (controller._compiled is not None) == (engine == "numba")
+        plant, record = Plant(pipe, sweep), []
+        plant.obs = plant.pending = {**plant.obs, **dict(zip("xyz", sweep[["ref_x", "ref_y", "ref_z"]].iloc[-1]))}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnreachableTargetWarning)
+            for i, target in enumerate(targets):
+                upcoming = targets[i + 1:i + 1 + preview] if windows is None else windows(i)
+                command = controller.step(target, plant.obs, upcoming=upcoming)
+                record.append([*command, *controller.aimed_, *getattr(controller, "correction_", ())])
+                plant.step(command)
+        got[engine] = (np.array(record), controller.n_unreachable_)
+    return got
+
+
+@needs_numba
+@pytest.mark.parametrize("case", ["feedforward", "internal-model", "tracker, limits", "resolved-rate"])
+def test_compiled_preview_gives_the_numpy_engines_commands(setup, case):
+    """With preview on the numba engine, the commands of the numpy engine's preview: each case of the step."""
+    pipe, sweep, targets = setup
+    # reversing motors, a held target, gaps in what is known ahead (None, nothing), an out-of-reach stretch
+    path = np.vstack([targets[:50], np.repeat(targets[[60]], 6, axis=0), np.tile([[90.0, 40.0, 10.0]], (4, 1)),
+                      targets[50:]])
+    Controller, kwargs = {
+        "feedforward": (FeedforwardController, {"rate_limit": 60.0}),
+        "internal-model": (FeedbackController, {"rate_limit": 60.0}),
+        "tracker, limits": (FeedbackController, {"close_on": "tracker", "rate_limit": 40.0, "dead_band": 0.5,
+                                                 "motor_limits": [[-25.0, 25.0], [-40.0, 20.0]]}),
+        "resolved-rate": (FeedbackController, {"feedforward": False, "gain": 0.5, "rate_limit": 60.0}),
+    }[case]
+    preview = 8
+
+    def windows(i):
+        if i % 23 == 5:
+            return None
+        return path[i + 1:i + 1 + (0 if i % 31 == 7 else preview)]
+
+    got = _both_engines(lambda engine: Controller(pipe, preview=preview, engine=engine, **kwargs), pipe, sweep,
+                        path, preview, windows)
+    np.testing.assert_allclose(got["numba"][0], got["numpy"][0], atol=1e-6)
+    assert got["numba"][1] == got["numpy"][1] >= 4  # the out-of-reach targets were met
+    without = _both_engines(lambda engine: Controller(pipe, engine=engine, **kwargs), pipe, sweep, path[:40], 0)
+    assert not np.allclose(without["numba"][0], got["numba"][0][:40])  # the preview changed the commands
+
+
+@needs_numba
+def test_compiled_preview_through_the_pi_gives_the_numpy_engines_commands():
+    """The PI's plan in the compiled step (a copy of its forward state stepped): the numpy engine's commands."""
+    pipe, sweep, targets = _model_path("pi")
+    for Controller, kwargs in ((FeedforwardController, {"rate_limit": 60.0}),
+                               (FeedbackController, {"rate_limit": 60.0, "dead_band": 0.5})):
+        got = _both_engines(lambda engine: Controller(pipe, preview=6, engine=engine, **kwargs), pipe, sweep,
+                            targets, 6)
+        np.testing.assert_allclose(got["numba"][0], got["numpy"][0], atol=1e-6)
+
+
+@needs_numba
+def test_compiled_preview_on_a_task_gives_the_numpy_engines_commands(setup):
+    """run_task on the simulated rig along a circle of a few hundred samples: both engines command the same."""
+    pipe = setup[0]
+    rig = SimulatedCatheter(catheter=1, setting="S05", random_state=0)
+    task = circle_task(rig.reset(), speed_mm_s=5.0, n_laps=1.2)
+    commands = {}
+    for engine in ("numpy", "numba"):
+        rig = SimulatedCatheter(catheter=1, setting="S05", random_state=0)
+        controller = FeedbackController(pipe, rate_limit=40.0, preview=10, engine=engine)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UnreachableTargetWarning)
+            result = run_task(rig, controller, task, preview=10)
+        commands[engine] = result.command
+    assert len(commands["numpy"]) >= 200
+    np.testing.assert_allclose(commands["numba"], commands["numpy"], atol=1e-6)

@@ -31,6 +31,18 @@ def _pi_arrays(inverse):
     return link, theta, inverse.state, inverse.dt, up, down
 
 
+def _pi_forward(inverse):
+    """What the compiled preview reads of a PI's forward step, in one array: ``pack()``, then its dead band up and down.
+
+    A placeholder for another inverse.
+    """
+    if inverse.kind != "pi":
+        return np.zeros(1)
+    n = np.size(inverse.state) // (inverse.model.thresholds.size + 2)
+    up, down = (np.broadcast_to(band, (n,)) for band in inverse.model._bands())
+    return np.concatenate([inverse.model.pack(), up, down]).astype(np.float64)
+
+
 class CompiledStep:
     """The compiled step of one started controller.
 
@@ -72,7 +84,10 @@ class CompiledStep:
         self.command = s[at[j.B_COMMAND] : at[j.B_COMMAND] + n]
         self.aimed = s[j.S_AIMED : j.S_AIMED + 3]
         self.correction = s[j.S_CORRECTION : j.S_CORRECTION + 3]
-        self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips, _pi_arrays(inverse))
+        window = np.zeros((max(controller.preview, 1), 3 + n))  # the targets in view and their solutions
+        self._args = (arrays, s, issued, aims, controller._grid_z, controller._grid_tips, _pi_arrays(inverse),
+                      _pi_forward(inverse), window)
+        self._nothing_ahead = np.empty((0, 3))
         self._kernel = j.control_kernel()
 
     @property
@@ -80,10 +95,16 @@ class CompiledStep:
         """Whether a motor or rate limit changed the last command."""
         return bool(self.state[self._jit.S_LIMITED])
 
-    def __call__(self, target, measured, sample):
+    def forget_ahead(self):
+        """Empty the preview's window: nothing ahead is known."""
+        self.state[self._jit.S_N_AHEAD] = 0.0
+
+    def __call__(self, target, measured, sample, ahead=None):
         """One step: the squared distance of the aimed tip from the (corrected) target (mm^2).
 
         ``target`` and ``measured`` (mm) are float arrays of shape (3,),
         ``sample`` the observed channels; the estimator has been stepped with them.
+        ``ahead`` (k, 3): the targets of the next samples (mm) for the preview, or None.
         """
-        return self._kernel(*self._args, target, measured, np.array(sample))
+        ahead = self._nothing_ahead if ahead is None else np.ascontiguousarray(ahead, dtype=np.float64)
+        return self._kernel(*self._args, target, measured, np.array(sample), ahead)

@@ -96,14 +96,8 @@ class _Controller(BaseEstimator):
             Ready for :meth:`step`; the first command moves from the last sweep sample.
         """
         self._validate_params()
-        engine = self.engine
-        if self.preview > 0:
-            if engine == "numba":
-                raise ValueError(f"preview={self.preview} runs on the numpy engine only; pass engine='numpy' "
-                                 "or 'auto' (which takes numpy when preview > 0), or preview=0 for numba.")
-            engine = "numpy"
         X = check_sweep(sweep).X
-        est = OnlineEstimator(self.pipeline, engine=engine).start(X)
+        est = OnlineEstimator(self.pipeline, engine=self.engine).start(X)
         n = len(est.q_neutral_)
         q = X[list(est.channels_[:n])].to_numpy(dtype=float)
         low, high = _limits_box(self.motor_limits, q)
@@ -132,12 +126,15 @@ class _Controller(BaseEstimator):
         """The controller of the compiled step: :data:`~skcath.control._modes.MODE_FEEDFORWARD`, ..."""
         return MODE_FEEDFORWARD
 
-    def _step_compiled(self, target, obs, need_tracker):
-        """The step on the numba engine: the observation read and the estimator stepped, then one compiled call."""
+    def _step_compiled(self, target, obs, need_tracker, ahead):
+        """The step on the numba engine: the observation read and the estimator stepped, then one compiled call.
+
+        ``ahead``: the targets of the next samples (k, 3) (mm) for the preview, or None.
+        """
         sample, t, tip = read_obs(obs, self.estimator_.channels_, need_tracker)
         self.estimate_ = self.estimator_.step(*sample, t=t)
         step = self._compiled
-        miss = math.sqrt(step(target, self.estimate_ if tip is None else tip, sample))
+        miss = math.sqrt(step(target, self.estimate_ if tip is None else tip, sample, ahead))
         self.aimed_ = step.aimed.copy()
         self.command_ = step.command.copy()
         self._limited = step.limited
@@ -231,6 +228,8 @@ class _Controller(BaseEstimator):
         """The checked ``upcoming`` targets within the preview (k, 3), or None: no preview this step."""
         if upcoming is None or self.preview == 0:
             self._ahead = []
+            if self._compiled is not None:
+                self._compiled.forget_ahead()
             return None
         ahead = check_upcoming(upcoming, self.preview)
         return ahead if len(ahead) else None
@@ -324,8 +323,8 @@ _COMMON_PARAMETERS = """
         ``rate_limit`` allows, the crossing starts early, so that it is half
         made at the reversal. Commands stay within the motor and rate
         limits. 0: no preview, ``upcoming`` is not read. The preview runs on
-        the numpy engine: ``engine="auto"`` takes it when ``preview > 0``,
-        ``engine="numba"`` with ``preview > 0`` raises a ``ValueError``.
+        either engine: on numba inside the compiled step, with the numpy
+        engine's commands (within 1e-6 deg).
     engine : {"auto", "numba", "numpy"}, default="auto"
         Engine of the model's step (:class:`~skcath.online.OnlineEstimator`).
 """
@@ -427,7 +426,7 @@ class FeedforwardController(_Controller):
         target = check_target(target)
         ahead = self._upcoming(upcoming)
         if self._compiled is not None:
-            command = self._step_compiled(target, obs, False)
+            command = self._step_compiled(target, obs, False, ahead)
         else:
             self._observe(obs)
             try:
@@ -536,7 +535,7 @@ class FeedbackController(_Controller):
         target = check_target(target)
         ahead = self._upcoming(upcoming)
         if self._compiled is not None:
-            command = self._step_compiled(target, obs, self.close_on == "tracker")
+            command = self._step_compiled(target, obs, self.close_on == "tracker", ahead)
         else:
             aimed_before = self._aims[0]  # the aim of the command the observation shows
             estimate, tip = self._observe(obs, need_tracker=self.close_on == "tracker")

@@ -24,6 +24,7 @@ from .._kernel import compiled, offsets
 from ..online._model_view_jit import advance as _advance
 from ..online._model_view_jit import restore as _restore
 from ..online._model_view_jit import tip as _tip
+from ..backbones._pi import pi_step
 from ._hysteresis import TOL_DEG, pi_command
 from ._modes import MODE_FEEDFORWARD, MODE_INTERNAL_MODEL, MODE_RESOLVED_RATE
 
@@ -32,8 +33,8 @@ __all__ = ["KIND_NONE", "KIND_PI", "KIND_PLAY", "control_kernel", "control_step"
 
 #: Scalars of the state array: parameters, then state; blocks of ``n_motors`` follow from ``S_BLOCKS``.
 (S_GAIN, S_DAMPING, S_EPS, S_TOL, S_MAX_ITER, S_MAX_STEP, S_WIDTH, S_BAND, S_RADIUS, S_MARGIN,
- S_MODE, S_LATENCY, S_KIND, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_CORRECTION, S_AIMED,
- S_BLOCKS) = offsets(*([1] * 16), 3, 3)
+ S_MODE, S_LATENCY, S_KIND, S_ISSUED_AT, S_AIMS_AT, S_LIMITED, S_N_AHEAD, S_CORRECTION, S_AIMED,
+ S_BLOCKS) = offsets(*([1] * 17), 3, 3)
 #: The hysteresis inverted (``S_KIND``): none, the play (half-width ``S_WIDTH``), the Prandtl-Ishlinskii model.
 KIND_NONE, KIND_PLAY, KIND_PI = 0, 1, 2
 #: Blocks of ``n_motors`` (deg): limits, last command, last solution, wanted angles, effective angles.
@@ -156,16 +157,13 @@ def _jacobian(view, z, torques, eps, tip, J, sample, out):
             J[k, j] = (out[k] - tip[k]) / eps
 
 
-def _aim(view, target, torques, s, grid_z, grid_tips, z, tip, J):
-    """Solve for ``target`` from the last solution, again from the nearest grid seed if closer.
+def _nearest(view, target, torques, s, grid_z, grid_tips, z, tip, J):
+    """Solve for ``target`` from ``z``, again from the nearest grid seed if closer.
 
-    As :meth:`_Controller._aim <skcath.control._controllers._Controller._aim>`:
-    ``z``, ``tip`` and ``J`` receive the solution, its tip and Jacobian;
-    returns the squared distance of the tip from the target (mm^2).
+    As :meth:`_Controller._nearest <skcath.control._controllers._Controller._nearest>`:
+    ``z`` (the start) and ``tip``, ``J`` receive the solution, its tip and
+    Jacobian; returns the squared distance of the tip from the target (mm^2).
     """
-    n = z.shape[0]
-    solution = _block(s, B_SOLUTION, n)
-    z[:] = solution
     _solve(view, target, z, torques, s, tip, J)
     miss2 = _distance2(target, tip)
     margin = s[S_MARGIN]
@@ -182,6 +180,19 @@ def _aim(view, target, torques, s, grid_z, grid_tips, z, tip, J):
             if miss2_grid < miss2:
                 z[:], tip[:], J[:, :] = z2, tip2, J2
                 miss2 = miss2_grid
+    return miss2
+
+
+def _aim(view, target, torques, s, grid_z, grid_tips, z, tip, J):
+    """Solve for ``target`` from the last solution (:func:`_nearest`), which it becomes.
+
+    As :meth:`_Controller._aim <skcath.control._controllers._Controller._aim>`:
+    ``z``, ``tip`` and ``J`` receive the solution, its tip and Jacobian;
+    returns the squared distance of the tip from the target (mm^2).
+    """
+    solution = _block(s, B_SOLUTION, z.shape[0])
+    z[:] = solution
+    miss2 = _nearest(view, target, torques, s, grid_z, grid_tips, z, tip, J)
     solution[:] = z
     return miss2
 
@@ -223,10 +234,98 @@ def _pi_commands(pi, z_wanted, z_state, q_previous, dead_band, q):
                           dt[0], up[j], down[j], dead_band)
 
 
-def _issue(s, z_wanted, issued, pi):
-    """The command for the wanted effective angles: the hysteresis' inverse, the motor and rate limits.
+def _angles_ahead(view, s, grid_z, grid_tips, torques, target, ahead, window, correction, out):
+    """Wanted effective angles (deg) of the samples ahead into ``out``, each target solved once as it comes in view.
 
-    As :meth:`_Controller._issue <skcath.control._controllers._Controller._issue>`:
+    As :meth:`_Controller._angles_ahead <skcath.control._controllers._Controller._angles_ahead>`:
+    ``ahead`` (k, 3) holds the targets of the next samples (mm); ``window``
+    the targets in view and their solutions, a row ``[x, y, z, angles...]``
+    each, ``S_N_AHEAD`` of them, the first that of this sample; updated.
+    A target is solved for minus ``correction`` (mm) from the solution of
+    the one before; one equal to this sample's ``target`` takes its solution.
+    """
+    n = out.shape[1]
+    solution = _block(s, B_SOLUTION, n)
+    count = max(int(s[S_N_AHEAD]) - 1, 0)  # the window moved on by a sample
+    for i in range(count):
+        window[i, :] = window[i + 1, :]
+    z, aim, tip, J = solution.copy(), np.empty(3), np.empty(3), np.empty((3, n))
+    for i in range(ahead.shape[0]):
+        now, same = True, i < count
+        for k in range(3):
+            now = now and ahead[i, k] == target[k]
+            same = same and window[i, k] == ahead[i, k]
+        if now:
+            z[:] = solution
+        elif same:
+            z[:] = window[i, 3:]
+        else:
+            for k in range(3):
+                aim[k] = ahead[i, k] - correction[k]
+            _nearest(view, aim, torques, s, grid_z, grid_tips, z, tip, J)
+        if not same:  # the window from here on is new
+            count = i + 1
+        window[i, :3] = ahead[i]
+        window[i, 3:] = z
+        out[i] = z
+    s[S_N_AHEAD] = count
+
+
+def _lead(s, pi, pi_forward, z_wanted, z_ahead, q):
+    """The previewed command (deg) into ``q``: the plan of the wanted angles ahead and the midpoint of its envelopes.
+
+    As :func:`~skcath.control._preview.plan` then :func:`~skcath.control._preview.lead`:
+    the hysteresis inverse along ``z_wanted`` then the rows of ``z_ahead``
+    (deg), each command from the previous, within the motor limits, the
+    effective angles (for the PI, a copy of the forward state) followed
+    through the hysteresis; ``pi_forward`` is the PI's
+    :meth:`~skcath.backbones.PrandtlIshlinskii.pack`, then its dead band up
+    and down (one value per motor each).
+    """
+    n, h = q.shape[0], z_ahead.shape[0] + 1
+    low, high, neutral, radius = _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n), s[S_RADIUS]
+    z_state, q_previous = _block(s, B_EFFECTIVE, n).copy(), _block(s, B_COMMAND, n).copy()
+    link, theta, forward, dt, up, down = pi
+    plan_pi = (link, theta, forward.copy(), dt, up, down)  # the stream's forward state left alone
+    size, width, pi_kind = int(pi_forward[0]) + 2, s[S_WIDTH], s[S_KIND] == KIND_PI
+    packed = 3 + 2 * int(pi_forward[0])  # [K, kappa, tau, g..., w...]
+    forward_theta, forward_up, forward_down = pi_forward[:packed], pi_forward[packed:], pi_forward[packed + n:]
+    u, z = np.empty((h, n)), np.empty(n)
+    for r in range(h):
+        if r == 0:
+            z[:] = z_wanted
+        else:
+            z[:] = z_ahead[r - 1]
+        _project(z, low, high, neutral, radius)
+        if pi_kind:
+            _pi_commands(plan_pi, z, z_state, q_previous, s[S_BAND], q)
+        else:
+            _play_command(z, z_state, q_previous, width, s[S_BAND], q)
+        _project(q, low, high, neutral, radius)
+        u[r, :] = q
+        q_previous[:] = q
+        for j in range(n):
+            if pi_kind:
+                z_state[j] = pi_step(forward_theta, plan_pi[2], j * size, q[j], dt[0], forward_up[j],
+                                     forward_down[j])
+            else:
+                z_state[j] = min(max(z_state[j], q[j] - width), q[j] + width)
+    max_step = s[S_MAX_STEP]
+    q[:] = u[0]
+    if h >= 2 and math.isfinite(max_step):
+        for j in range(n):
+            above, below = -np.inf, np.inf
+            for r in range(h):
+                above = max(above, u[r, j] - max_step * r)
+                below = min(below, u[r, j] + max_step * r)
+            q[j] = 0.5 * (above + below)
+
+
+def _issue(s, z_wanted, issued, pi, pi_forward, z_ahead):
+    """The command for the wanted effective angles: the hysteresis' inverse, the preview, the motor and rate limits.
+
+    As :meth:`_Controller._issue <skcath.control._controllers._Controller._issue>`,
+    the wanted angles of the samples ahead in the rows of ``z_ahead`` (none: no preview, :func:`_lead`):
     the command goes to the block ``B_COMMAND`` and the queue ``issued``
     (a ring of the last ``latency`` commands), ``S_LIMITED`` says whether a
     limit changed it.
@@ -247,6 +346,14 @@ def _issue(s, z_wanted, issued, pi):
     largest = 0.0
     for j in range(n):
         limited = limited or limited_q[j] != q[j]
+    if z_ahead.shape[0] > 0:
+        led = np.empty(n)
+        _lead(s, pi, pi_forward, z_wanted, z_ahead, led)
+        _project(led, low, high, neutral, s[S_RADIUS])
+        for j in range(n):
+            limited = limited or led[j] != limited_q[j]
+        limited_q[:] = led
+    for j in range(n):
         largest = max(largest, abs(limited_q[j] - command[j]))
     max_step = s[S_MAX_STEP]
     if largest > max_step:  # the move scaled as a whole: its direction kept
@@ -284,7 +391,27 @@ def _observe(view, s, issued, sample, torques):
             effective[j] = sample[j]
 
 
-def control_step(view, s, issued, aims, grid_z, grid_tips, pi, target, measured, sample):
+def _preview_angles(view, s, grid_z, grid_tips, torques, target, ahead, window, z, z_ahead):
+    """Wanted effective angles (deg) of the samples ahead into ``z_ahead``, corrected as this sample's ``z`` is.
+
+    As :meth:`FeedbackController._feedback <skcath.control._controllers.FeedbackController._feedback>`:
+    the internal model solves them for the corrected targets, the resolved
+    rate moves them by the feedback's offset from this sample's solution ``z``.
+    """
+    n, mode = z.shape[0], int(s[S_MODE])
+    correction = np.zeros(3)
+    if mode == MODE_INTERNAL_MODEL:
+        correction[:] = s[S_CORRECTION : S_CORRECTION + 3]
+    _angles_ahead(view, s, grid_z, grid_tips, torques, target, ahead, window, correction, z_ahead)
+    if mode == MODE_RESOLVED_RATE:
+        offset = _block(s, B_WANTED, n) - z
+        for i in range(z_ahead.shape[0]):
+            for j in range(n):
+                z_ahead[i, j] += offset[j]
+
+
+def control_step(view, s, issued, aims, grid_z, grid_tips, pi, pi_forward, window, target, measured, sample,
+                 ahead):
     """One step of a controller, from the observed sample to the command (block ``B_COMMAND``).
 
     Parameters
@@ -302,14 +429,19 @@ def control_step(view, s, issued, aims, grid_z, grid_tips, pi, target, measured,
         and whether its command went out unlimited (1.0) or not (0.0); updated.
     grid_z, grid_tips : ndarray of shape (n_seeds, n_motors), (n_seeds, 3)
         The seeds of the solve: effective angles (deg) and the backbone's tips there (mm).
-    pi : tuple of ndarray
-        The PI's inverse (see :func:`_pi_commands`); read with ``S_KIND == KIND_PI`` only.
+    pi, pi_forward : tuple of ndarray, ndarray
+        The PI's inverse (see :func:`_pi_commands`) and forward step (see
+        :func:`_lead`); read with ``S_KIND == KIND_PI`` only.
+    window : ndarray of shape (max(preview, 1), 3 + n_motors)
+        The targets ahead in view and their solutions (see :func:`_angles_ahead`); updated.
     target : ndarray of shape (3,)
         Wanted tip (mm).
     measured : ndarray of shape (3,)
         The tip the feedback compares with its aim (mm): the estimate or the tracker's.
     sample : ndarray of shape (n_channels,)
         The observed sample (deg, then the torques).
+    ahead : ndarray of shape (k, 3)
+        The targets of the next ``k`` samples (mm); ``k = 0``: no preview this sample.
 
     Returns
     -------
@@ -342,7 +474,10 @@ def control_step(view, s, issued, aims, grid_z, grid_tips, pi, target, measured,
         _project(wanted, _block(s, B_LOW, n), _block(s, B_HIGH, n), _block(s, B_NEUTRAL, n), s[S_RADIUS])
     else:
         wanted[:] = z
-    _issue(s, wanted, issued, pi)
+    z_ahead = np.empty((ahead.shape[0], n))
+    if ahead.shape[0] > 0:
+        _preview_angles(view, s, grid_z, grid_tips, torques, target, ahead, window, z, z_ahead)
+    _issue(s, wanted, issued, pi, pi_forward, z_ahead)
     s[S_AIMED : S_AIMED + 3] = tip
     if mode != MODE_FEEDFORWARD:
         at = int(s[S_AIMS_AT])
@@ -361,8 +496,9 @@ def control_kernel():
     """The compiled :func:`control_step` (loaded from numba's cache when a previous process compiled it)."""
     if not _compiled_step:
         g = globals()
-        for name in ("_project", "_damped_step", "_look", "_jacobian", "_solve", "_distance2", "_aim",
-                     "_play_command", "_pi_commands", "_issue", "_observe", "_block"):
+        for name in ("_project", "_damped_step", "_look", "_jacobian", "_solve", "_distance2", "_nearest", "_aim",
+                     "_play_command", "_pi_commands", "_angles_ahead", "_lead", "_preview_angles", "_issue",
+                     "_observe", "_block"):
             g[name] = compiled(g[name])  # the step calls them compiled
         _compiled_step["step"] = compiled(control_step)
     return _compiled_step["step"]
