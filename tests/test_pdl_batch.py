@@ -1,16 +1,21 @@
-"""The rays of the PDL calibration solved together: exactly the steps of the single solver."""
+"""The rays of the PDL calibration solved together: exactly the steps of the single solver.
+
+Also the width grids' calibrations (several played sweeps) solved in one batch, and the play's
+and the PI's searches of a backbone with the grid batched against the grid calibrated in turn.
+"""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from skcath.backbones import _pdl
+from skcath.backbones import PDLBackbone, _pdl, identify_play_width, play_operator
 from skcath.backbones._lm import (
     _batched_levenberg_marquardt,
     _solve_steps,
     levenberg_marquardt,
 )
 from skcath.backbones._pdl import calibrate_pdl
+from skcath.backbones._pdl_batch import _calibrate_pdl_batch
 from skcath.datasets import simulate_run
 from skcath.sweep import find_rays
 
@@ -123,3 +128,55 @@ def test_singular_system_is_solved_alone_with_growing_damping():
     assert_array_equal(ok, [False, True])
     assert lam[0] > 1e16 and lam[1] == 1e-3
     assert_array_equal(steps[1], np.linalg.solve(A[1] + 1e-3 * scale[1], -g[1]))
+
+
+# ---------------------------------------------------------------------------
+# the width grids' calibrations in one batch
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("max_iter", [8, 100])
+def test_grid_batch_equals_each_calibration_alone(sweep, max_iter):
+    q, p, rays = sweep
+    qs = [play_operator(q, width) for width in (0.0, 2.0, 7.5, 14.0, 20.0)]
+    args = (p, rays.labels, rays.directions, rays.neutral)
+    batch = _calibrate_pdl_batch(qs, *args, q_neutral=rays.q_neutral, max_iter=max_iter)
+    alone = [calibrate_pdl(z, *args, q_neutral=rays.q_neutral, max_iter=max_iter, return_info=True)
+             for z in qs]
+    assert len(batch) == len(qs)
+    for a, b in zip(batch, alone):
+        _assert_identical(a, b)
+    # the widths' own rho0 (half their largest rho) differ: each ray kept its calibration's
+    assert len({params.rho0 for params, _ in batch}) == len(qs)
+    assert _calibrate_pdl_batch([], *args) == []
+
+
+def _one_by_one(self, qs, ref, rays, q_raw):
+    return [self._calibrate(q, ref, rays, q_raw) for q in qs]
+
+
+@pytest.mark.parametrize("hysteresis", ["play", "pi"])
+def test_batched_grid_equals_the_sequential_grid(hysteresis, monkeypatch):
+    X = simulate_run(random_state=3).X
+    batched = PDLBackbone(hysteresis=hysteresis).fit(X).calibrate(X)
+    monkeypatch.setattr(PDLBackbone, "_calibrate_many", _one_by_one)
+    sequential = PDLBackbone(hysteresis=hysteresis).fit(X).calibrate(X)
+    assert batched.table.equals(sequential.table)
+    assert_array_equal(batched.nominal, sequential.nominal, strict=True)
+    assert batched.play_widths == sequential.play_widths
+    (run,) = batched.params
+    _assert_identical((batched.params[run], {}), (sequential.params[run], {}))
+
+
+def test_grid_callable_is_asked_for_the_grid():
+    asked = []
+
+    def cost(w):
+        return (w - 7.3) ** 2
+
+    def grid(widths):
+        asked.append(list(widths))
+        return [cost(w) for w in widths]
+
+    assert identify_play_width(cost, 20.0, grid) == identify_play_width(cost, 20.0)
+    assert asked == [[2.0 * k for k in range(11)]]
+    with pytest.raises(ValueError, match="grid_rmse must return one RMSE"):
+        identify_play_width(cost, 20.0, lambda widths: [0.0])

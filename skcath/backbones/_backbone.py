@@ -31,6 +31,7 @@ from ._pi import PrandtlIshlinskii, SweepProblem
 from ._pi_sweep import identify_sweep_pi, strided_reference
 from ._pcc import calibrate_pcc, pcc_tip
 from ._pdl import calibrate_pdl, pdl_tip
+from ._pdl_batch import _calibrate_pdl_batch
 
 __all__ = ["BACKBONE_COLUMNS", "PCCBackbone", "PDLBackbone", "check_two_motors"]
 
@@ -142,6 +143,7 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
         model, params, info = identify_sweep_pi(
             problem, max_play_deg=backbone.max_play_deg, n_motors=q.shape[1],
             where=f"run {run!r}", search=lambda z: backbone._calibrate(z, few, rays, q_sweep),
+            search_many=lambda zs: backbone._calibrate_many(zs, few, rays, q_sweep),
         )
         return backbone._evaluate(model.forward(q, t), params), params, info, model
     fits = {}
@@ -151,7 +153,12 @@ def _calibrate_run(backbone, run, q, ref, sweep, given=None, t=None):
         fits[float(width)] = backbone._calibrate(played, ref_sweep, rays, q_sweep)
         return fits[float(width)][1]["rmse_mm"]
 
-    width = identify_play_width(sweep_rmse, backbone.max_play_deg)
+    def grid_rmse(widths):  # the grid's calibrations at once, with the numbers of sweep_rmse
+        played = [play_operator(q_sweep, width) for width in widths]
+        fits.update(zip(widths, backbone._calibrate_many(played, ref_sweep, rays, q_sweep)))
+        return [fits[width][1]["rmse_mm"] for width in widths]
+
+    width = identify_play_width(sweep_rmse, backbone.max_play_deg, grid_rmse)
     params, info = fits[width]
     # the sweep rows come first, so the run's played angles continue the sweep's
     return backbone._evaluate(play_operator(q, width), params), params, info, width
@@ -405,6 +412,9 @@ class PCCBackbone(_BaseBackbone):
     >>> mean_per_run_rmse(data.y, b, data.X)  # doctest: +SKIP
     """
 
+    def _calibrate_many(self, qs, ref, rays, q_raw):
+        return [self._calibrate(q, ref, rays, q_raw) for q in qs]
+
     def _calibrate(self, q, ref, rays, q_raw):
         return calibrate_pcc(
             q, ref, q0=rays.q_neutral, S_m=rays.amplitude, max_iter=self.max_iter, return_info=True
@@ -464,6 +474,13 @@ class PDLBackbone(_BaseBackbone):
         return calibrate_pdl(
             q, ref, rays.labels, rays.directions, _at_neutral(q_raw, ref, rays),
             q_neutral=rays.q_neutral, max_iter=self.max_iter, return_info=True,
+        )
+
+    def _calibrate_many(self, qs, ref, rays, q_raw):
+        # the calibrations of the angles qs, all their rays solved together
+        return _calibrate_pdl_batch(
+            qs, ref, rays.labels, rays.directions, _at_neutral(q_raw, ref, rays),
+            q_neutral=rays.q_neutral, max_iter=self.max_iter,
         )
 
     def _evaluate(self, q, params):

@@ -131,7 +131,7 @@ def play_operator(q, width):
     return np.column_stack([z1, z2])
 
 
-def identify_play_width(sweep_rmse, max_play_deg):
+def identify_play_width(sweep_rmse, max_play_deg, grid_rmse=None):
     """The half-width of the play whose calibration fits the sweep best (deg).
 
     A grid of half-widths from 0 to ``max_play_deg`` in steps of
@@ -148,6 +148,12 @@ def identify_play_width(sweep_rmse, max_play_deg):
         calibrated on the sweep angles played with that half-width.
     max_play_deg : float
         Largest half-width searched (deg), > 0.
+    grid_rmse : callable, optional
+        ``grid_rmse(widths) -> list of float``: the RMSEs (mm) of
+        ``sweep_rmse`` for a list of half-widths at once (e.g. all their
+        calibrations solved together); it must return exactly the numbers
+        of ``sweep_rmse``, so that the width found is the same. It is asked
+        for the grid; None means ``sweep_rmse`` on each grid width in turn.
 
     Returns
     -------
@@ -156,7 +162,12 @@ def identify_play_width(sweep_rmse, max_play_deg):
     """
     n_cells = max(1, math.ceil(max_play_deg / PLAY_GRID_STEP_DEG - 1e-9))
     grid = np.linspace(0.0, max_play_deg, n_cells + 1)
-    rmse = {float(w): sweep_rmse(float(w)) for w in grid}
+    widths = [float(w) for w in grid]
+    values = list(grid_rmse(widths)) if grid_rmse is not None else [sweep_rmse(w) for w in widths]
+    if len(values) != len(widths):
+        raise ValueError(f"grid_rmse must return one RMSE (mm) per half-width; got {len(values)} "
+                         f"for {len(widths)} half-widths.")
+    rmse = dict(zip(widths, values))
     k = int(np.argmin([rmse[float(w)] for w in grid]))
     lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, n_cells)])
     result = minimize_scalar(

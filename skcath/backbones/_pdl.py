@@ -724,12 +724,17 @@ class _RayBatch:
     ----------
     rho, p_ref : list of ndarray
         Per ray, the ``rho`` (deg) and ``p_ref`` (mm) of :class:`_RayProblem`.
-    p0, basis, rho0
+    p0, basis
         As in :class:`PDLParams`.
+    rho0 : float or list of float
+        As in :class:`PDLParams`, shared or per ray (rays of calibrations
+        that share ``p0`` and the basis, e.g. of one sweep's angles played
+        with several half-widths).
     """
 
     def __init__(self, rho, p_ref, p0, basis, rho0):
         self.rho, self.rho0 = rho, rho0
+        self._per_ray = np.ndim(rho0) > 0
         self.big_p = float(np.linalg.norm(p0))
         self.target = [((p - p0) @ basis.T).T.copy() for p in p_ref]
         self._groups = {}
@@ -743,15 +748,17 @@ class _RayBatch:
             ends = np.cumsum(sizes).tolist()
             rho = np.concatenate([self.rho[k] for k in ids])
             spans = {k: slice(end - size, end) for k, size, end in zip(ids, sizes, ends)}
-            self._groups[key] = (rho, sizes, spans, _JacobianFactors(rho, self.rho0))
+            # per ray: each sample's own rho0, so that rho - rho0 is the ray's alone
+            rho0 = np.repeat([self.rho0[k] for k in ids], sizes) if self._per_ray else self.rho0
+            self._groups[key] = (rho, sizes, spans, _JacobianFactors(rho, rho0), rho0)
         return self._groups[key]
 
     def residuals(self, ids, c):
         """Residual vectors of the rays ``ids`` for their coefficients, the rows of ``c``."""
-        rho, sizes, spans, _ = self._group(ids)
+        rho, sizes, spans, _, rho0 = self._group(ids)
         # one ray: its coefficients broadcast; several: (n, 6), each coefficient contiguous
         per_sample = c[0] if len(ids) == 1 else np.repeat(c.T, sizes, axis=1).T
-        rec = _Reconstruction(*_responses(rho, per_sample, self.rho0), self.big_p)
+        rec = _Reconstruction(*_responses(rho, per_sample, rho0), self.big_p)
         delta = rec.components()
         self._last = (rec, spans)
         return [(delta[:, spans[k]] - self.target[k]).ravel() for k in ids]
@@ -759,9 +766,9 @@ class _RayBatch:
     def jacobians(self, ids):
         """Jacobians of the rays ``ids`` at the coefficients of the last :meth:`residuals`."""
         rec, last_spans = self._last
-        _, _, spans, factors = self._group(ids)
+        _, _, spans, factors, _ = self._group(ids)
         if list(last_spans) != list(ids):
-            rec = rec.take(np.concatenate([np.arange(len(rec.s))[last_spans[k]] for k in ids]))
+            rec = rec.take(np.concatenate([np.arange(last_spans[k].start, last_spans[k].stop) for k in ids]))
         jac = _coef_jacobian(rec, factors)
         return [np.ascontiguousarray(jac[:, spans[k]]).reshape(-1, _N_COEF) for k in ids]
 
@@ -790,6 +797,77 @@ def _check_calibration_inputs(q, p, labels, directions, neutral):
             f"got {np.unique(labels[bad])[:10].tolist()}."
         )
     return q, p, labels, directions, neutral
+
+
+class _RayFits:
+    """One calibration of :func:`calibrate_pdl`: its rays' rows and starts, then its result.
+
+    Steps 1-3 of :func:`calibrate_pdl` on validated copies of its inputs;
+    :meth:`batch` or :meth:`problems` give the rays to refine (step 4),
+    :meth:`result` the parameters and summary from their solver results.
+    """
+
+    def __init__(self, q, p, labels, directions, neutral, q_neutral=None, rho0=None):
+        q, p, labels, directions, neutral = _check_calibration_inputs(q, p, labels, directions, neutral)
+        keep = np.all(np.isfinite(p), axis=1)
+        q, p, labels, neutral = q[keep], p[keep], labels[keep], neutral[keep]
+        if not np.any(neutral):
+            raise ValueError("No neutral row has a finite reference tip; p0 cannot be estimated.")
+        q_neutral = q[neutral].mean(axis=0) if q_neutral is None else np.asarray(q_neutral, dtype=float)
+        if q_neutral.shape != (2,) or not np.all(np.isfinite(q_neutral)):
+            raise ValueError(f"q_neutral must be 2 finite motor angles (deg); got {q_neutral!r}.")
+        self.p0 = p[neutral].mean(axis=0)
+        self.basis = _neutral_basis(self.p0)
+        rho, _ = _polar(q, q_neutral)
+        self.rows = [np.flatnonzero((labels == k) & ~neutral) for k in range(len(directions))]
+        for k, idx in enumerate(self.rows):
+            if len(idx) < MIN_RAY_SAMPLES:
+                raise ValueError(
+                    f"The ray at {np.rad2deg(directions[k]):.1f} deg has {len(idx)} non-neutral rows "
+                    f"with finite reference tips; at least {MIN_RAY_SAMPLES} are needed."
+                )
+        if rho0 is None:
+            rho0 = 0.5 * max(float(rho[idx].max()) for idx in self.rows)
+        if not np.isfinite(rho0):
+            raise ValueError(f"rho0 must be finite (deg); got {rho0!r}.")
+        gamma_i, dist_i, phi_i = _reference_responses(p, self.p0, self.basis)
+        self.c0 = [_initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0) for idx in self.rows]
+        self.rho = [rho[idx] for idx in self.rows]
+        self.p_ref = [p[idx] for idx in self.rows]
+        self.q_neutral, self.directions, self.rho0 = q_neutral, directions, rho0
+
+    def batch(self):
+        """The rays as one :class:`_RayBatch`."""
+        return _RayBatch(self.rho, self.p_ref, self.p0, self.basis, self.rho0)
+
+    def problems(self):
+        """Each ray's :class:`_RayProblem` and start, in ray order."""
+        for rho, p_ref, c0 in zip(self.rho, self.p_ref, self.c0):
+            yield _RayProblem(rho, p_ref, self.p0, self.basis, self.rho0), c0
+
+    def result(self, results, return_info):
+        """Step 5 and the return value of :func:`calibrate_pdl` from one LMResult per ray."""
+        coef = np.array([result.x for result in results])
+        cost = np.array([result.cost for result in results])
+        n_iter = np.array([result.n_iter for result in results], dtype=int)
+        converged = np.array([result.converged for result in results], dtype=bool)
+        coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
+        params = PDLParams(p0=self.p0, basis=self.basis, q_neutral=self.q_neutral,
+                           directions=self.directions, coef=coef, rho0=self.rho0)
+        if not return_info:
+            return params
+        n_samples = np.array([len(idx) for idx in self.rows])
+        info = {
+            "cost": float(cost.sum()),
+            "rmse_mm": float(np.sqrt(2.0 * cost.sum() / n_samples.sum())),
+            "ray_rmse_mm": np.sqrt(2.0 * cost / n_samples),
+            "n_samples": n_samples,
+            "n_iter": int(n_iter.max()),
+            "ray_n_iter": n_iter,
+            "converged": bool(converged.all()),
+            "ray_converged": converged,
+        }
+        return params, info
 
 
 @validate_params(
@@ -888,60 +966,9 @@ def calibrate_pdl(
         than 6 rows with finite references (the message names its direction
         in degrees).
     """
-    q, p, labels, directions, neutral = _check_calibration_inputs(q, p, labels, directions, neutral)
-    keep = np.all(np.isfinite(p), axis=1)
-    q, p, labels, neutral = q[keep], p[keep], labels[keep], neutral[keep]
-    if not np.any(neutral):
-        raise ValueError("No neutral row has a finite reference tip; p0 cannot be estimated.")
-    q_neutral = q[neutral].mean(axis=0) if q_neutral is None else np.asarray(q_neutral, dtype=float)
-    if q_neutral.shape != (2,) or not np.all(np.isfinite(q_neutral)):
-        raise ValueError(f"q_neutral must be 2 finite motor angles (deg); got {q_neutral!r}.")
-    p0 = p[neutral].mean(axis=0)
-    basis = _neutral_basis(p0)
-    rho, _ = _polar(q, q_neutral)
-
-    n_rays = len(directions)
-    rows = [np.flatnonzero((labels == k) & ~neutral) for k in range(n_rays)]
-    for k, idx in enumerate(rows):
-        if len(idx) < MIN_RAY_SAMPLES:
-            raise ValueError(
-                f"The ray at {np.rad2deg(directions[k]):.1f} deg has {len(idx)} non-neutral rows "
-                f"with finite reference tips; at least {MIN_RAY_SAMPLES} are needed."
-            )
-    if rho0 is None:
-        rho0 = 0.5 * max(float(rho[idx].max()) for idx in rows)
-    if not np.isfinite(rho0):
-        raise ValueError(f"rho0 must be finite (deg); got {rho0!r}.")
-
-    gamma_i, dist_i, phi_i = _reference_responses(p, p0, basis)
-    coef = np.empty((n_rays, _N_COEF))
-    cost = np.empty(n_rays)
-    n_iter = np.empty(n_rays, dtype=int)
-    converged = np.empty(n_rays, dtype=bool)
-    c0 = [_initial_ray_coef(rho[idx], gamma_i[idx], dist_i[idx], phi_i[idx], rho0) for idx in rows]
+    fit = _RayFits(q, p, labels, directions, neutral, q_neutral, rho0)
     if solver is None:  # the rays together, each with the steps of levenberg_marquardt
-        batch = _RayBatch([rho[idx] for idx in rows], [p[idx] for idx in rows], p0, basis, rho0)
-        results = _batched_levenberg_marquardt(batch, np.array(c0), max_iter=max_iter, ftol=FTOL)
+        results = _batched_levenberg_marquardt(fit.batch(), np.array(fit.c0), max_iter=max_iter, ftol=FTOL)
     else:
-        results = [
-            solver(_RayProblem(rho[idx], p[idx], p0, basis, rho0), c0[k], max_iter=max_iter, ftol=FTOL)
-            for k, idx in enumerate(rows)
-        ]
-    for k, result in enumerate(results):
-        coef[k], cost[k], n_iter[k], converged[k] = result.x, result.cost, result.n_iter, result.converged
-    coef[:, _PHI0] = _unwrap_rays(coef[:, _PHI0])
-    params = PDLParams(p0=p0, basis=basis, q_neutral=q_neutral, directions=directions, coef=coef, rho0=rho0)
-    if not return_info:
-        return params
-    n_samples = np.array([len(idx) for idx in rows])
-    info = {
-        "cost": float(cost.sum()),
-        "rmse_mm": float(np.sqrt(2.0 * cost.sum() / n_samples.sum())),
-        "ray_rmse_mm": np.sqrt(2.0 * cost / n_samples),
-        "n_samples": n_samples,
-        "n_iter": int(n_iter.max()),
-        "ray_n_iter": n_iter,
-        "converged": bool(converged.all()),
-        "ray_converged": converged,
-    }
-    return params, info
+        results = [solver(problem, c0, max_iter=max_iter, ftol=FTOL) for problem, c0 in fit.problems()]
+    return fit.result(results, return_info)

@@ -101,11 +101,13 @@ def strided_reference(target, max_rows=MAX_SEARCH_ROWS):
     return out
 
 
-def _best_width(rmse, lo, hi, grid=False):
+def _best_width(rmse, lo, hi, grid=False, many=None):
     """The half-width (deg) in ``[lo, hi]`` of the lowest ``rmse(width)``, by a bounded search.
 
     With ``grid``, a grid of step :data:`WIDTH_GRID_STEP_DEG` first, the
-    search then between the neighbours of its best width.
+    search then between the neighbours of its best width; ``many(widths)``
+    gives the grid's RMSEs at once (the numbers of ``rmse``), None means
+    ``rmse`` on each grid width in turn.
     """
     seen = {}
 
@@ -117,13 +119,39 @@ def _best_width(rmse, lo, hi, grid=False):
     if grid:
         n_cells = max(1, math.ceil((hi - lo) / WIDTH_GRID_STEP_DEG - 1e-9))
         widths = np.linspace(lo, hi, n_cells + 1)
-        k = int(np.argmin([f(w) for w in widths]))
+        if many is None:
+            values = [f(w) for w in widths]
+        else:
+            clamped = [float(min(max(w, lo), hi)) for w in widths]
+            values = many(clamped)
+            seen.update(zip(clamped, values))
+        k = int(np.argmin(values))
         lo, hi = float(widths[max(k - 1, 0)]), float(widths[min(k + 1, n_cells)])
     minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": WIDTH_XTOL_DEG})
     return min(seen, key=lambda w: (seen[w], w))
 
 
-def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", search=None):
+def _plays_at_once(fits, problem, search_many, max_play_deg, n_motors):
+    """``plays(widths)``: the RMSEs (mm) of the plays (softness 0) of ``widths``, judged at once.
+
+    The trials not yet in ``fits`` (keyed ``(width, softness)``, as in
+    :func:`identify_sweep_pi`) are calibrated by one ``search_many`` call
+    and recorded there.
+    """
+
+    def plays(widths):
+        keys = [(w, 0.0) for w in widths if (w, 0.0) not in fits]
+        models = [soft_play(w, s, max_play_deg, n_motors) for w, s in keys]
+        found = search_many([problem.effective(model) for model in models]) if keys else []
+        for key, model, fit in zip(keys, models, found):
+            fits[key] = (model, *fit)
+        return [fits[(w, 0.0)][2]["rmse_mm"] for w in widths]
+
+    return plays
+
+
+def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", search=None,
+                      search_many=None):
     """Identify the loop half-width and softness of the PI by the backbone's sweep RMSE.
 
     ``problem`` (:class:`~skcath.backbones._pi.SweepProblem`) holds the
@@ -163,6 +191,11 @@ def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", sear
     search : callable, optional
         ``search(z) -> (params, info)`` with ``info["rmse_mm"]``: the
         calibration that judges the trials; None means ``problem.calibrate``.
+    search_many : callable, optional
+        ``search_many(zs) -> list of (params, info)``: ``search`` on a list
+        of effective sweep angles at once, with exactly its numbers (e.g.
+        all the calibrations solved together); it is asked for the first
+        grid. None means ``search`` on each in turn.
 
     Returns
     -------
@@ -193,7 +226,8 @@ def identify_sweep_pi(problem, *, max_play_deg, n_motors, where="the rows", sear
             fits[key] = (model, *search(problem.effective(model)))
         return fits[key][2]["rmse_mm"]
 
-    width = _best_width(lambda w: rmse(w, 0.0), 0.0, max_play_deg, grid=True)
+    many = None if search_many is None else _plays_at_once(fits, problem, search_many, max_play_deg, n_motors)
+    width = _best_width(lambda w: rmse(w, 0.0), 0.0, max_play_deg, grid=True, many=many)
     top = min(1.0, width / g_bar)
     if top > 0:
         minimize_scalar(lambda s: rmse(width, min(s, top)), bounds=(0.0, top),
